@@ -1,0 +1,52 @@
+"""elasticoop: a differentiable JAX simulator of the elastic system in cooperative
+manipulation (m manipulators holding one object through elastic grasps).
+
+Importing elasticoop turns on JAX's 64-bit mode (`jax_enable_x64`): tolerances such
+as `rtol=1e-8` are meaningless in float32.
+"""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
+from ._forces import (  # noqa: E402
+    AbstractForce as AbstractForce,
+    ConstantForce as ConstantForce,
+    FeedbackForce as FeedbackForce,
+    SampledForce as SampledForce,
+    generalized_wrench as generalized_wrench,
+)
+from ._lagrange import (  # noqa: E402
+    accelerations as accelerations,
+    damping_forces as damping_forces,
+    elastic_forces as elastic_forces,
+    inverse_dynamics as inverse_dynamics,
+    mass_matrix as mass_matrix,
+    velocity_terms as velocity_terms,
+)
+from ._models import (  # noqa: E402
+    AbstractElasticModel as AbstractElasticModel,
+    Connection as Connection,
+    ImmobileModel as ImmobileModel,
+    MobileModel as MobileModel,
+    connection_dissipation as connection_dissipation,
+    connection_potential as connection_potential,
+    deflection as deflection,
+    linearize_mobile as linearize_mobile,
+)
+from ._rotations import (  # noqa: E402
+    RPY as RPY,
+    ZXZ as ZXZ,
+    AbstractRotation as AbstractRotation,
+    get_rotation as get_rotation,
+)
+from ._simulate import (  # noqa: E402
+    GIMBAL_TOL as GIMBAL_TOL,
+    LINK_TOL as LINK_TOL,
+    SimulationError as SimulationError,
+    simulate as simulate,
+)
+from ._trajectory import Status as Status, Trajectory as Trajectory  # noqa: E402
+
+__version__ = "0.1.0"

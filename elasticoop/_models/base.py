@@ -1,0 +1,97 @@
+"""What every elastic-system model provides: bodies, gravity, $\\Pi$ and $R$."""
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._body import RigidBody, kinetic_energy
+from .._custom_types import Scalar, State
+from .._rotations import AbstractRotation, get_rotation
+
+# Eigenvalues below this fraction of the largest count as zero in `rank K`.
+RANK_RTOL = 1e-9
+
+
+class AbstractElasticModel(eqx.Module):
+    """An elastic system of $m + 1$ rigid bodies (body 0 the object, 1..m the
+    contact bodies) with generalized coordinates
+    $Y_i = (x, y, z, a_1, a_2, a_3)$ stacked body-major as an array `(bodies, 6)`.
+
+    A concrete model defines the potential energy $\\Pi(Y)$ and the Rayleigh function
+    $R(Y, \\dot Y)$; the kinetic energy $T = \\sum_i T_i$ and the gravity potential
+    $\\sum_i m_i g z_i$ are common to all.
+    """
+
+    bodies: eqx.AbstractVar[RigidBody]
+    gravity: eqx.AbstractVar[Scalar]
+    convention: eqx.AbstractVar[str]
+
+    @abc.abstractmethod
+    def potential(self, y: State) -> Scalar:
+        """Elastic potential energy $\\Pi(Y)$ [J]."""
+
+    @abc.abstractmethod
+    def dissipation(self, y: State, ydot: State) -> Scalar:
+        """Rayleigh dissipation function $R(Y, \\dot Y)$ [W]; the dissipated power
+        is $\\dot Y \\cdot \\partial R/\\partial \\dot Y = 2R$."""
+
+    @property
+    def rotation(self) -> AbstractRotation:
+        return get_rotation(self.convention)
+
+    @property
+    def n_bodies(self) -> int:
+        return int(np.shape(self.bodies.mass)[-1])
+
+    @property
+    def n_manipulators(self) -> int:
+        """$m$, the number of contact bodies (all bodies but the object)."""
+        return self.n_bodies - 1
+
+    def kinetic_energy(self, y: State, ydot: State) -> Scalar:
+        """$T = \\sum_i T_i(Y_i, \\dot Y_i)$ [J]."""
+        per_body = jax.vmap(kinetic_energy, in_axes=(0, None, 0, 0))
+        return jnp.sum(per_body(self.bodies, self.rotation, y, ydot))
+
+    def gravity_potential(self, y: State) -> Scalar:
+        """$\\sum_i m_i g z_i$ [J] (gravity along $-z$)."""
+        return self.gravity * jnp.sum(self.bodies.mass * y[:, 2])
+
+    def gravity_forces(self) -> State:
+        """$G_i = (0, 0, -m_i g, 0, 0, 0)$, shape `(bodies, 6)`."""
+        g = jnp.zeros((self.n_bodies, 6))
+        return g.at[:, 2].set(-self.gravity * self.bodies.mass)
+
+    def total_energy(self, y: State, ydot: State) -> Scalar:
+        """$E = T + \\Pi + \\sum_i m_i g z_i$ [J]."""
+        return (
+            self.kinetic_energy(y, ydot) + self.potential(y) + self.gravity_potential(y)
+        )
+
+    def stiffness_matrix(self, y: State) -> jax.Array:
+        """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))`."""
+        n = 6 * self.n_bodies
+        flat = y.reshape(n)
+        hess = jax.hessian(lambda q: self.potential(q.reshape(y.shape)))(flat)
+        return hess
+
+    def stiffness_rank(self, y: State) -> int:
+        """rank K of the stiffness at configuration `y` (eigenvalues below
+        `RANK_RTOL` times the largest count as zero)."""
+        return _rank(self.stiffness_matrix(jnp.asarray(y, dtype=jnp.float64)))
+
+    def n_prescribed(self, y: State) -> int:
+        """$6m + 6 - \\operatorname{rank} K$: coordinates to prescribe to fix the
+        system's static position at configuration `y`."""
+        return 6 * self.n_bodies - self.stiffness_rank(y)
+
+
+def _rank(k) -> int:
+    eig = np.linalg.eigvalsh(np.asarray(k))
+    top = np.max(np.abs(eig)) if eig.size else 0.0
+    if top == 0.0:
+        return 0
+    return int(np.sum(np.abs(eig) > RANK_RTOL * top))

@@ -1,0 +1,110 @@
+"""Appendix A: the immobile unloaded state, a constant stiffness matrix K."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._body import RigidBody, stack_bodies
+from .._custom_types import Scalar, State
+from .._rotations import get_rotation
+from .._validation import as_float_array, is_concrete, require
+from .base import AbstractElasticModel, _rank
+
+# Relative tolerances for "K is symmetric" and "K is positive semidefinite".
+SYMMETRY_RTOL = 1e-10
+PSD_RTOL = 1e-9
+
+
+def check_symmetric_psd(matrix, name: str):
+    """Validate a symmetric positive semidefinite matrix (works traced or not)."""
+    scale = jnp.maximum(jnp.max(jnp.abs(matrix)), 1e-300)
+    asym = jnp.max(jnp.abs(matrix - matrix.T))
+    matrix = require(
+        matrix,
+        asym <= SYMMETRY_RTOL * scale,
+        f"{name} must be symmetric; largest |{name} - {name}^T| is",
+        asym,
+    )
+    eig = jnp.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    low = jnp.min(eig) if eig.size else jnp.zeros(())
+    return require(
+        matrix,
+        low >= -PSD_RTOL * scale,
+        f"{name} must be positive semidefinite; its smallest eigenvalue is",
+        low,
+    )
+
+
+def check_gravity(gravity) -> Scalar:
+    gravity = as_float_array(gravity, "gravity", ())
+    return require(gravity, gravity >= 0, "gravity must be >= 0 [m/s^2]", gravity)
+
+
+class ImmobileModel(AbstractElasticModel):
+    """Appendix A: motion about the immobile unloaded state $Y_0$.
+
+    $$\\Pi = \\tfrac12 (Y - Y_0)^T K (Y - Y_0), \\qquad
+      R = \\tfrac12 \\dot Y^T D \\dot Y,$$
+
+    with $K = K^T \\ge 0$, $\\operatorname{rank} K \\le 6m$ and $D = D^T \\ge 0$, both
+    $(6m+6)\\times(6m+6)$ over the body-major stacked coordinates. The state is the
+    absolute configuration $Y$ (so $y = Y - Y_0$); $T$ is evaluated at the absolute
+    angles.
+
+    **Arguments:**
+
+    - `bodies`: sequence of `RigidBody`, the object first.
+    - `K`, `D`: stiffness [N/m, N m/rad, ...] and damping matrices.
+    - `y0`: unloaded configuration $Y_0$, shape `(bodies, 6)`. With ZXZ angles it must
+      not sit at $\\theta = 0$ (gimbal lock).
+    - `gravity`: $g$ [m/s^2], acting along $-z$.
+    - `convention`: `"zxz"` (default, the appendix's) or `"rpy"`.
+    """
+
+    bodies: RigidBody
+    K: jnp.ndarray
+    D: jnp.ndarray
+    y0: State
+    gravity: Scalar
+    convention: str = eqx.field(static=True)
+
+    def __init__(self, bodies, K, D, y0, gravity=9.81, convention="zxz"):
+        get_rotation(convention)
+        self.convention = convention
+        self.bodies = stack_bodies(bodies)
+        n = int(np.shape(self.bodies.mass)[0])
+        size = 6 * n
+        K = as_float_array(K, "ImmobileModel.K", (size, size))
+        D = as_float_array(D, "ImmobileModel.D", (size, size))
+        self.K = check_symmetric_psd(K, "K")
+        self.D = check_symmetric_psd(D, "D")
+        if is_concrete(self.K):
+            rank = _rank(self.K)
+            if rank > 6 * (n - 1):
+                raise ValueError(
+                    f"rank K must be <= 6m = {6 * (n - 1)} for m = {n - 1} "
+                    f"manipulators (a free system has a rigid-motion null space), "
+                    f"got rank K = {rank}"
+                )
+        self.y0 = as_float_array(y0, "ImmobileModel.y0", (n, 6))
+        self.gravity = check_gravity(gravity)
+
+    def potential(self, y: State) -> Scalar:
+        dy = (y - self.y0).reshape(-1)
+        return 0.5 * dy @ (self.K @ dy)
+
+    def dissipation(self, y: State, ydot: State) -> Scalar:
+        v = ydot.reshape(-1)
+        return 0.5 * v @ (self.D @ v)
+
+    def stiffness_matrix(self, y: State | None = None) -> jnp.ndarray:
+        """K (constant for this model; `y` is ignored)."""
+        return self.K
+
+    def stiffness_rank(self, y: State | None = None) -> int:
+        """rank K."""
+        return _rank(self.K)
+
+    def n_prescribed(self, y: State | None = None) -> int:
+        """$6m + 6 - \\operatorname{rank} K$."""
+        return 6 * self.n_bodies - _rank(self.K)

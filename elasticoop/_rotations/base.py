@@ -1,0 +1,61 @@
+"""The interface every Euler-angle sequence implements."""
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._custom_types import Matrix3, Scalar, Vector3
+
+
+class AbstractRotation(eqx.Module):
+    """An Euler-angle sequence $\\mathcal{A} = (a_1, a_2, a_3)$.
+
+    Only the rotation matrix $R(\\mathcal{A})$ (body -> world) and the matrix
+    $L_\\omega(\\mathcal{A})$ of the body-frame angular velocity
+    $\\omega = L_\\omega(\\mathcal{A})\\,\\dot{\\mathcal{A}}$ are written per sequence;
+    everything else (mass matrix, velocity terms) follows by differentiation of the
+    kinetic energy.
+    """
+
+    name: eqx.AbstractClassVar[str]
+    angle_names: eqx.AbstractClassVar[tuple[str, str, str]]
+    regular_angles: eqx.AbstractClassVar[tuple[float, float, float]]
+    singularity_name: eqx.AbstractClassVar[str]
+
+    @abc.abstractmethod
+    def matrix(self, angles: Vector3) -> Matrix3:
+        """Rotation matrix $R$ taking body-frame vectors to the world frame."""
+
+    @abc.abstractmethod
+    def angular_velocity_matrix(self, angles: Vector3) -> Matrix3:
+        """$L_\\omega(\\mathcal{A})$ with $\\omega_{body} = L_\\omega \\dot{\\mathcal{A}}$."""
+
+    @abc.abstractmethod
+    def regularity(self, angles: Vector3) -> Scalar:
+        """A measure that is zero exactly at the sequence's singularity.
+
+        $|\\det L_\\omega|$: $|\\sin\\theta|$ for ZXZ, $|\\cos(\\text{pitch})|$ for RPY.
+        """
+
+    def angular_velocity(self, angles: Vector3, angle_rates: Vector3) -> Vector3:
+        """Body-frame angular velocity $\\omega = L_\\omega(\\mathcal{A})\\dot{\\mathcal{A}}$."""
+        return self.angular_velocity_matrix(angles) @ angle_rates
+
+
+def rot_x(a: Scalar) -> Matrix3:
+    c, s = jnp.cos(a), jnp.sin(a)
+    one, zero = jnp.ones_like(a), jnp.zeros_like(a)
+    return jnp.array([[one, zero, zero], [zero, c, -s], [zero, s, c]])
+
+
+def rot_y(a: Scalar) -> Matrix3:
+    c, s = jnp.cos(a), jnp.sin(a)
+    one, zero = jnp.ones_like(a), jnp.zeros_like(a)
+    return jnp.array([[c, zero, s], [zero, one, zero], [-s, zero, c]])
+
+
+def rot_z(a: Scalar) -> Matrix3:
+    c, s = jnp.cos(a), jnp.sin(a)
+    one, zero = jnp.ones_like(a), jnp.zeros_like(a)
+    return jnp.array([[c, -s, zero], [s, c, zero], [zero, zero, one]])

@@ -1,0 +1,40 @@
+"""Tait-Bryan roll-pitch-yaw angles, regular at the identity."""
+
+import jax.numpy as jnp
+
+from .._custom_types import Matrix3, Scalar, Vector3
+from .base import AbstractRotation, rot_x, rot_y, rot_z
+
+
+class RPY(AbstractRotation):
+    """Roll-pitch-yaw angles $(\\phi_r, \\theta_p, \\psi_y)$ (stored in this order),
+    $R = R_z(\\psi_y) R_y(\\theta_p) R_x(\\phi_r)$.
+
+    $$L_\\omega = \\begin{bmatrix}
+        1 & 0 & -\\sin\\theta_p \\\\
+        0 & \\cos\\phi_r & \\sin\\phi_r\\cos\\theta_p \\\\
+        0 & -\\sin\\phi_r & \\cos\\phi_r\\cos\\theta_p \\end{bmatrix}$$
+
+    Singular (gimbal lock) at pitch $= \\pm\\pi/2$: $\\det L_\\omega = \\cos\\theta_p$.
+    """
+
+    name = "rpy"
+    angle_names = ("roll", "pitch", "yaw")
+    regular_angles = (0.0, 0.0, 0.0)
+    singularity_name = "|cos(pitch)|"
+
+    def matrix(self, angles: Vector3) -> Matrix3:
+        roll, pitch, yaw = angles
+        return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+    def angular_velocity_matrix(self, angles: Vector3) -> Matrix3:
+        roll, pitch, _ = angles
+        sr, cr = jnp.sin(roll), jnp.cos(roll)
+        sp, cp = jnp.sin(pitch), jnp.cos(pitch)
+        zero, one = jnp.zeros_like(pitch), jnp.ones_like(pitch)
+        return jnp.array(
+            [[one, zero, -sp], [zero, cr, sr * cp], [zero, -sr, cr * cp]]
+        )
+
+    def regularity(self, angles: Vector3) -> Scalar:
+        return jnp.abs(jnp.cos(angles[1]))

@@ -1,0 +1,40 @@
+"""The appendix's ZXZ Euler angles $(\\psi, \\theta, \\varphi)$."""
+
+import jax.numpy as jnp
+
+from .._custom_types import Matrix3, Scalar, Vector3
+from .base import AbstractRotation, rot_x, rot_z
+
+
+class ZXZ(AbstractRotation):
+    """ZXZ Euler angles, $R = R_z(\\psi) R_x(\\theta) R_z(\\varphi)$.
+
+    $$L_\\omega = \\begin{bmatrix}
+        \\sin\\theta\\sin\\varphi & \\cos\\varphi & 0 \\\\
+        \\sin\\theta\\cos\\varphi & -\\sin\\varphi & 0 \\\\
+        \\cos\\theta & 0 & 1 \\end{bmatrix}$$
+
+    Singular (gimbal lock) at $\\theta = 0, \\pi$: $\\det L_\\omega = -\\sin\\theta$.
+    The identity orientation is singular; $\\theta = \\pi/2$ is a regular choice.
+    """
+
+    name = "zxz"
+    angle_names = ("psi", "theta", "phi")
+    regular_angles = (0.0, jnp.pi / 2, 0.0)
+    singularity_name = "|sin(theta)|"
+
+    def matrix(self, angles: Vector3) -> Matrix3:
+        psi, theta, phi = angles
+        return rot_z(psi) @ rot_x(theta) @ rot_z(phi)
+
+    def angular_velocity_matrix(self, angles: Vector3) -> Matrix3:
+        _, theta, phi = angles
+        st, ct = jnp.sin(theta), jnp.cos(theta)
+        sp, cp = jnp.sin(phi), jnp.cos(phi)
+        zero, one = jnp.zeros_like(theta), jnp.ones_like(theta)
+        return jnp.array(
+            [[st * sp, cp, zero], [st * cp, -sp, zero], [ct, zero, one]]
+        )
+
+    def regularity(self, angles: Vector3) -> Scalar:
+        return jnp.abs(jnp.sin(angles[1]))

@@ -1,0 +1,273 @@
+"""`simulate`: a thin layer over `diffrax.diffeqsolve`."""
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ._forces import AbstractForce, SampledForce, as_force, check_force_shape
+from ._forces import pad_to_bodies
+from ._lagrange import accelerations
+from ._models import AbstractElasticModel, MobileModel
+from ._trajectory import Status, Trajectory, describe
+from ._validation import as_float_array, is_concrete, require
+
+# Documented thresholds of the two singularities a run stops at.
+GIMBAL_TOL = 1e-3  # |sin theta| (ZXZ) or |cos pitch| (RPY)
+LINK_TOL = 1e-9  # |r_i - r_j| [m]
+
+
+class SimulationError(RuntimeError):
+    """A simulation stopped early: gimbal lock, a collapsed link or solver failure.
+
+    `.trajectory` holds the partial result (`status`, `event_time`, `event_index`).
+    """
+
+    def __init__(self, message: str, trajectory: Trajectory):
+        super().__init__(message)
+        self.trajectory = trajectory
+
+
+def simulate(
+    model: AbstractElasticModel,
+    y_init,
+    ydot_init,
+    ts,
+    forces=None,
+    solver: diffrax.AbstractSolver | None = None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 100_000,
+    *,
+    dt0: float | None = None,
+    adjoint: diffrax.AbstractAdjoint | None = None,
+    throw: bool | None = None,
+    gimbal_tol: float = GIMBAL_TOL,
+    link_tol: float = LINK_TOL,
+) -> Trajectory:
+    """Integrate $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$ from `ts[0]` to `ts[-1]`.
+
+    **Arguments:**
+
+    - `model`: an `ImmobileModel` or `MobileModel`.
+    - `y_init`, `ydot_init`: $Y(t_0)$, $\\dot Y(t_0)$, shape `(bodies, 6)`.
+    - `ts`: increasing output times [s]; the run starts at `ts[0]`.
+    - `forces`: `None`, an array `(m, 6)` (constant), a `ConstantForce`,
+      `SampledForce`, or a callable `f(t, y, ydot) -> (m, 6)`. A leading row for the
+      object, shape `(m + 1, 6)`, adds a disturbance on it.
+    - `solver`: any diffrax solver (default `diffrax.Tsit5()`; an implicit one such as
+      `diffrax.Kvaerno5()` for stiff grasps).
+    - `rtol`, `atol`: tolerances of the adaptive step-size controller.
+    - `max_steps`: the most steps the solver may take.
+    - `dt0`: initial step (default: chosen by diffrax).
+    - `adjoint`: diffrax adjoint for reverse-mode gradients (default
+      `RecursiveCheckpointAdjoint`).
+    - `throw`: `None` (default) raises `SimulationError` for an early stop when the
+      result is concrete, and reports it in `Trajectory.status` under `jit`/`vmap`/
+      `grad`; `True` raises in both cases; `False` never raises.
+    - `gimbal_tol`: the run stops when a body's $|\\sin\\theta|$ (ZXZ) or
+      $|\\cos(\\text{pitch})|$ (RPY) falls below this.
+    - `link_tol`: the run stops when a link's length $|r_i - r_j|$ falls below this
+      [m] (`MobileModel`).
+
+    **Returns:** a `Trajectory`. Differentiable with respect to every array in the
+    model, the initial state and the forces, and `jax.vmap`-able over any of them.
+    """
+    if not isinstance(model, AbstractElasticModel):
+        raise ValueError(
+            f"model must be an ImmobileModel or MobileModel, got {type(model).__name__}"
+        )
+    n = model.n_bodies
+    y_init = as_float_array(y_init, "y_init", (n, 6))
+    ydot_init = as_float_array(ydot_init, "ydot_init", (n, 6))
+    ts = as_float_array(ts, "ts", (None,))
+    if ts.shape[0] < 2:
+        raise ValueError(f"ts needs at least 2 times, got {ts.shape[0]}")
+    ts = require(
+        ts, jnp.all(jnp.diff(ts) > 0), "ts must be strictly increasing", ts
+    )
+    force = as_force(forces)
+    if force is not None:
+        shape = jax.eval_shape(force, ts[0], y_init, ydot_init).shape
+        check_force_shape(shape, n)
+        if isinstance(force, SampledForce) and is_concrete(force.ts, ts):
+            lo, hi = float(force.ts[0]), float(force.ts[-1])
+            if float(ts[0]) < lo or float(ts[-1]) > hi:
+                raise ValueError(
+                    f"ts spans [{float(ts[0])}, {float(ts[-1])}] s but the "
+                    f"SampledForce samples only cover [{lo}, {hi}] s"
+                )
+    if max_steps is None or int(max_steps) < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    for name, value in (("rtol", rtol), ("atol", atol)):
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number, got {value!r}")
+    if is_concrete(y_init):
+        reg = np.asarray(jax.vmap(model.rotation.regularity)(y_init[:, 3:]))
+        if np.any(reg < gimbal_tol):
+            body = int(np.argmin(reg))
+            raise ValueError(
+                f"y_init: body {body} starts at gimbal lock "
+                f"({model.rotation.singularity_name} = {reg[body]:.3g} < "
+                f"{gimbal_tol}) with convention {model.convention!r}, where the "
+                f"mass matrix is singular; choose other angles or the other "
+                f"convention"
+            )
+
+    traj = _solve(
+        model,
+        y_init,
+        ydot_init,
+        ts,
+        force,
+        diffrax.Tsit5() if solver is None else solver,
+        float(rtol),
+        float(atol),
+        int(max_steps),
+        dt0,
+        diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
+        float(gimbal_tol),
+        float(link_tol),
+    )
+    if throw is False:
+        return traj
+    if is_concrete(traj.status):
+        if int(traj.status) != Status.SUCCESS:
+            raise SimulationError(describe(traj), traj)
+    elif throw:
+        y = eqx.error_if(
+            traj.y,
+            traj.status != Status.SUCCESS,
+            "simulation stopped early (gimbal lock, collapsed link or solver "
+            "failure); run with throw=False and inspect Trajectory.status",
+        )
+        traj = eqx.tree_at(lambda t: t.y, traj, y)
+    return traj
+
+
+def _vector_field(t, state, args):
+    model, force = args
+    y, ydot, _, _ = state
+    if force is None:
+        applied = jnp.zeros_like(y)
+    else:
+        applied = pad_to_bodies(force(t, y, ydot), model.n_bodies)
+    yddot, damping = accelerations(model, y, ydot, applied)
+    return ydot, yddot, jnp.sum(applied * ydot), jnp.sum(damping * ydot)
+
+
+def _regularity(model, y):
+    return jax.vmap(model.rotation.regularity)(y[:, 3:])
+
+
+@eqx.filter_jit
+def _solve(
+    model: AbstractElasticModel,
+    y_init,
+    ydot_init,
+    ts,
+    force: AbstractForce | None,
+    solver,
+    rtol,
+    atol,
+    max_steps,
+    dt0,
+    adjoint,
+    gimbal_tol,
+    link_tol,
+) -> Trajectory:
+    # A start at the singularity (only possible when traced) is flagged, and a
+    # regular orientation is integrated instead so the batch stays finite.
+    reg0 = _regularity(model, y_init)
+    singular0 = jnp.any(reg0 < gimbal_tol)
+    regular = jnp.asarray(model.rotation.regular_angles)
+    y_start = jnp.where(singular0, y_init.at[:, 3:].set(regular), y_init)
+
+    def gimbal(t, y, args, **kwargs):
+        return jnp.min(_regularity(args[0], y[0])) - gimbal_tol
+
+    cond_fns = [gimbal]
+    if isinstance(model, MobileModel) and model.n_connections > 0:
+
+        def collapse(t, y, args, **kwargs):
+            return jnp.min(args[0].link_lengths(y[0])) - link_tol
+
+        cond_fns.append(collapse)
+    event = diffrax.Event(
+        cond_fns, root_finder=optx.Newton(rtol=1e-12, atol=1e-12), direction=False
+    )
+    controller = diffrax.PIDController(rtol=rtol, atol=atol)
+    jump_ts = None if force is None else force.jump_ts
+    if jump_ts is not None:
+        controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
+    zero = jnp.zeros((), dtype=y_init.dtype)
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(_vector_field),
+        solver,
+        t0=ts[0],
+        t1=ts[-1],
+        dt0=dt0,
+        y0=(y_start, ydot_init, zero, zero),
+        args=(model, force),
+        saveat=diffrax.SaveAt(ts=ts, t1=True),
+        stepsize_controller=controller,
+        adjoint=adjoint,
+        event=event,
+        max_steps=max_steps,
+        throw=False,
+    )
+    y_all, ydot_all, work, dissipated = sol.ys
+    t_end = sol.ts[-1]
+    y_end = y_all[-1]
+
+    event_hit = sol.result == diffrax.RESULTS.event_occurred
+    gimbal_hit = event_hit & sol.event_mask[0]
+    collapse_hit = event_hit & (sol.event_mask[1] if len(cond_fns) > 1 else False)
+    status = jnp.select(
+        [
+            singular0,
+            gimbal_hit,
+            collapse_hit,
+            sol.result == diffrax.RESULTS.max_steps_reached,
+            ~(event_hit | (sol.result == diffrax.RESULTS.successful)),
+        ],
+        [
+            Status.GIMBAL_LOCK,
+            Status.GIMBAL_LOCK,
+            Status.LINK_COLLAPSED,
+            Status.MAX_STEPS_REACHED,
+            Status.SOLVER_FAILED,
+        ],
+        Status.SUCCESS,
+    )
+    if len(cond_fns) > 1:
+        worst_link = jnp.argmin(model.link_lengths(y_end))
+    else:
+        worst_link = jnp.asarray(-1)
+    index = jnp.select(
+        [singular0, gimbal_hit, collapse_hit],
+        [jnp.argmin(reg0), jnp.argmin(_regularity(model, y_end)), worst_link],
+        -1,
+    )
+    event_time = jnp.where(singular0, ts[0], t_end)
+    failed = status != Status.SUCCESS
+    after = failed & (ts > event_time) | singular0
+
+    def mask(x):
+        x = x[:-1]
+        shape = (-1,) + (1,) * (x.ndim - 1)
+        return jnp.where(after.reshape(shape), jnp.nan, x)
+
+    return Trajectory(
+        ts=ts,
+        y=mask(y_all),
+        ydot=mask(ydot_all),
+        work=mask(work),
+        dissipated=mask(dissipated),
+        model=model,
+        status=status.astype(jnp.int32),
+        event_time=event_time,
+        event_index=index.astype(jnp.int32),
+    )

@@ -1,0 +1,134 @@
+"""The result of `simulate` and the quantities derived from it."""
+
+import enum
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ._custom_types import StateSeries, Times
+from ._lagrange import elastic_forces
+from ._models import AbstractElasticModel, MobileModel
+
+
+class Status(enum.IntEnum):
+    """Outcome of one simulation (`Trajectory.status`)."""
+
+    SUCCESS = 0
+    GIMBAL_LOCK = 1
+    LINK_COLLAPSED = 2
+    MAX_STEPS_REACHED = 3
+    SOLVER_FAILED = 4
+
+
+class Trajectory(eqx.Module):
+    """A simulated motion of the elastic system.
+
+    **Fields:**
+
+    - `ts`: times, shape `(times,)` [s].
+    - `y`, `ydot`: $Y(t)$ and $\\dot Y(t)$, shape `(times, bodies, 6)` (positions [m],
+      angles [rad] and their rates).
+    - `work`: work done by the applied forces since `ts[0]`,
+      $\\int F\\cdot\\dot Y\\,dt$ [J], shape `(times,)`.
+    - `dissipated`: energy dissipated since `ts[0]`, $\\int 2R\\,dt$ [J].
+    - `model`: the model that was simulated.
+    - `status`: a `Status` code (0 = success). After an early stop (gimbal lock, a
+      collapsed link, a solver failure) the samples after `event_time` are NaN.
+    - `event_time`: the time the run stopped early ($t_1$ when it did not).
+    - `event_index`: the body (gimbal lock) or connection (collapsed link) at fault,
+      -1 otherwise.
+
+    Under `jax.vmap` every field gains a leading batch axis.
+    """
+
+    ts: Times
+    y: StateSeries
+    ydot: StateSeries
+    work: Times
+    dissipated: Times
+    model: AbstractElasticModel
+    status: jax.Array
+    event_time: jax.Array
+    event_index: jax.Array
+
+    @property
+    def succeeded(self) -> jax.Array:
+        return self.status == Status.SUCCESS
+
+    def _over_time(self, fn, *fields):
+        return jax.vmap(fn)(*fields)
+
+    def kinetic_energy(self) -> Times:
+        """$T(t)$ [J]."""
+        return self._over_time(self.model.kinetic_energy, self.y, self.ydot)
+
+    def elastic_energy(self) -> Times:
+        """$\\Pi(t)$ [J]."""
+        return self._over_time(self.model.potential, self.y)
+
+    def gravity_energy(self) -> Times:
+        """$\\sum_i m_i g z_i(t)$ [J]."""
+        return self._over_time(self.model.gravity_potential, self.y)
+
+    def total_energy(self) -> Times:
+        """$E = T + \\Pi + \\sum_i m_i g z_i$ [J]."""
+        return self._over_time(self.model.total_energy, self.y, self.ydot)
+
+    def dissipated_power(self) -> Times:
+        """$2R(Y, \\dot Y)$ [W], the power lost in the dampers."""
+        return 2 * self._over_time(self.model.dissipation, self.y, self.ydot)
+
+    def energy_residual(self) -> Times:
+        """$E(t) - E(t_0) - W_F(t) + E_{diss}(t)$: zero up to the solver's error by
+        the balance $\\dot E = F\\cdot\\dot Y - 2R$."""
+        energy = self.total_energy()
+        return energy - energy[0] - self.work + self.dissipated
+
+    def elastic_forces(self) -> StateSeries:
+        """$\\partial\\Pi/\\partial Y$ per body [N, N m], shape `(times, bodies, 6)`."""
+        return self._over_time(lambda y: elastic_forces(self.model, y), self.y)
+
+    def elastic_wrench(self) -> jax.Array:
+        """Generalized elastic force of each connection on its first body,
+        $-\\partial\\Pi_{ij}/\\partial Y_i$, shape `(times, connections, 6)`
+        (`MobileModel` only; for an `ImmobileModel` see `elastic_forces`)."""
+        if not isinstance(self.model, MobileModel):
+            raise ValueError(
+                "elastic_wrench needs a MobileModel (an ImmobileModel has no "
+                "connections); use Trajectory.elastic_forces() for dPi/dY per body"
+            )
+        return self._over_time(self.model.connection_wrench, self.y)
+
+    def message(self) -> str:
+        """A sentence describing `status` (for a single, un-batched trajectory)."""
+        return describe(self)
+
+
+def describe(traj: Trajectory) -> str:
+    status = Status(int(traj.status))
+    t = float(traj.event_time)
+    k = int(traj.event_index)
+    if status == Status.SUCCESS:
+        return "the simulation reached the final time"
+    if status == Status.GIMBAL_LOCK:
+        rotation = traj.model.rotation
+        other = "rpy" if rotation.name == "zxz" else "zxz"
+        return (
+            f"gimbal lock: body {k} reached the singularity of the "
+            f"{rotation.name.upper()} Euler angles ({rotation.singularity_name} "
+            f"below the threshold) at t = {t:.9g} s; the mass matrix is singular "
+            f"there. Use convention={other!r} or start further from the singularity."
+        )
+    if status == Status.LINK_COLLAPSED:
+        i, j = (int(v) for v in jnp.asarray(traj.model.pairs)[k])
+        return (
+            f"connection {k} between bodies {i} and {j} collapsed (|r_i - r_j| "
+            f"reached zero) at t = {t:.9g} s; its deflection has no direction there"
+        )
+    if status == Status.MAX_STEPS_REACHED:
+        return (
+            f"the solver reached max_steps at t = {t:.9g} s; raise max_steps, loosen "
+            f"rtol/atol or use an implicit solver for stiff grasps"
+        )
+    return f"the solver failed at t = {t:.9g} s (step size too small or NaN)"

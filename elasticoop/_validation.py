@@ -1,0 +1,64 @@
+"""Input checks that name the offending field and value.
+
+Concrete values are checked eagerly and raise `ValueError`; traced values (inside a
+user's `jit`/`vmap`/`grad`) are checked with `eqx.error_if`, which raises at run time.
+"""
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def is_concrete(*xs) -> bool:
+    """True when no leaf of `xs` is a tracer, so values can be inspected in Python."""
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(xs))
+
+
+def _show(value) -> str:
+    arr = np.asarray(value)
+    if arr.size > 12:
+        return f"array of shape {arr.shape}"
+    return np.array2string(arr, precision=6, separator=", ")
+
+
+def as_float_array(value, name: str, shape: Sequence[int | None] | None = None):
+    """Convert to a float64 array, checking shape and finiteness.
+
+    `shape` entries of `None` accept any length along that axis.
+    """
+    if isinstance(value, jax.core.Tracer):
+        arr = value.astype(jnp.float64) if value.dtype != jnp.float64 else value
+    else:
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"{name} must be an array of numbers, got {value!r}"
+            ) from None
+    if shape is not None:
+        shape = tuple(shape)
+        ok = arr.ndim == len(shape) and all(
+            s is None or s == a for s, a in zip(shape, arr.shape)
+        )
+        if not ok:
+            want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
+            raise ValueError(f"{name} must have shape {want}, got shape {arr.shape}")
+    arr = jnp.asarray(arr, dtype=jnp.float64)
+    return require(arr, jnp.all(jnp.isfinite(arr)), f"{name} must be finite", arr)
+
+
+def require(x, ok, message: str, shown=None):
+    """Return `x`, raising `ValueError(message + value)` where `ok` is false.
+
+    With concrete inputs the check happens now; with traced ones through
+    `eqx.error_if` (so it also works under `jit` and `vmap`).
+    """
+    if is_concrete(ok):
+        if not bool(np.all(np.asarray(ok))):
+            suffix = "" if shown is None else f", got {_show(shown)}"
+            raise ValueError(message + suffix)
+        return x
+    return eqx.error_if(x, jnp.logical_not(jnp.all(ok)), message)

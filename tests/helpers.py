@@ -1,0 +1,120 @@
+"""Shared test models, states and closed forms (the appendix, MODEL.md's fixes)."""
+
+import jax.numpy as jnp
+import numpy as np
+
+import elasticoop as eo
+
+CONVENTIONS = ("zxz", "rpy")
+
+# Regular orientations for each convention (away from gimbal lock).
+UPRIGHT = {"zxz": (0.0, np.pi / 2, 0.0), "rpy": (0.0, 0.0, 0.0)}
+
+
+def three_body_state(convention="zxz", spread=0.5, height=1.0):
+    """Object at the origin-ish, two grasps at +-spread along x."""
+    a = UPRIGHT[convention]
+    return jnp.array(
+        [
+            [0.0, 0.0, height, *a],
+            [-spread, 0.0, height, *a],
+            [spread, 0.0, height, *a],
+        ]
+    )
+
+
+def three_body_model(convention="zxz", damping=True, gravity=9.81, stiffness=None):
+    """The 3-body MobileModel used across the tests: object + 2 grasps."""
+    bodies = [
+        eo.RigidBody(2.0, (0.02, 0.15, 0.16)),
+        eo.RigidBody(0.3, (2e-3, 3e-3, 4e-3)),
+        eo.RigidBody(0.25, (1.5e-3, 2.5e-3, 3e-3)),
+    ]
+    if stiffness is None:
+        stiffness = [(800.0, 900.0, 1000.0, 20.0, 25.0, 30.0),
+                     (700.0, 850.0, 950.0, 22.0, 18.0, 26.0)]
+    damp = [(3.0, 2.5, 2.0, 0.05, 0.04, 0.06), (2.0, 3.5, 2.2, 0.03, 0.05, 0.04)]
+    if not damping:
+        damp = [(0.0,) * 6] * 2
+    conns = [
+        eo.Connection(0, k + 1, stiffness=stiffness[k], damping=damp[k])
+        for k in range(2)
+    ]
+    model = eo.MobileModel(bodies, conns, gravity=gravity, convention=convention)
+    return model.with_unloaded_state(three_body_state(convention))
+
+
+def zxz_mass_matrix(m, A, B, C, theta, phi):
+    """W_i printed in Appendix A."""
+    st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
+    W = np.zeros((6, 6))
+    W[0, 0] = W[1, 1] = W[2, 2] = m
+    W[3, 3] = st**2 * (A * sp**2 + B * cp**2) + C * ct**2
+    W[3, 4] = W[4, 3] = 0.5 * (A - B) * st * np.sin(2 * phi)
+    W[3, 5] = W[5, 3] = C * ct
+    W[4, 4] = A * cp**2 + B * sp**2
+    W[5, 5] = C
+    return W
+
+
+def zxz_wdot_ydot(A, B, C, theta, phi, dpsi, dtheta, dphi):
+    """The printed vector Wdot_i ydot_i with MODEL.md's fix 3 (phi row restored)."""
+    st, ct = np.sin(theta), np.cos(theta)
+    s2p, c2p = np.sin(2 * phi), np.cos(2 * phi)
+    sp2, cp2 = np.sin(phi) ** 2, np.cos(phi) ** 2
+    psi_row = (
+        dpsi * dtheta * np.sin(2 * theta) * (A * sp2 + B * cp2 - C)
+        + dpsi * dphi * (A - B) * st**2 * s2p
+        + dtheta * dphi * st * ((A - B) * c2p - C)
+        + 0.5 * dtheta**2 * (A - B) * ct * s2p
+    )
+    theta_row = (
+        0.5 * dpsi * dtheta * (A - B) * ct * s2p
+        + dpsi * dphi * (A - B) * st * c2p
+        - dtheta * dphi * (A - B) * s2p
+    )
+    phi_row = -dpsi * dtheta * C * st
+    return np.array([0, 0, 0, psi_row, theta_row, phi_row])
+
+
+def zxz_dT_dy(A, B, C, theta, phi, dpsi, dtheta, dphi):
+    """dT_i/dy_i printed in Appendix A."""
+    st, ct = np.sin(theta), np.cos(theta)
+    s2p, c2p = np.sin(2 * phi), np.cos(2 * phi)
+    sp2, cp2 = np.sin(phi) ** 2, np.cos(phi) ** 2
+    theta_row = (
+        0.5 * dpsi**2 * np.sin(2 * theta) * (A * sp2 + B * cp2 - C)
+        + 0.5 * dpsi * dtheta * (A - B) * ct * s2p
+        - dpsi * dphi * C * st
+    )
+    phi_row = (
+        0.5 * dpsi**2 * (A - B) * st**2 * s2p
+        + dpsi * dtheta * (A - B) * st * c2p
+        - 0.5 * dtheta**2 * (A - B) * s2p
+    )
+    return np.array([0, 0, 0, 0, theta_row, phi_row])
+
+
+def zxz_w_angular(A, B, C, theta, phi, dpsi, dtheta, dphi):
+    """Angular rows of the appendix's w_i (elastic/damping parts excluded), with
+    MODEL.md's fix 2 (the missing minus before C in the theta row)."""
+    st, ct = np.sin(theta), np.cos(theta)
+    s2p, c2p = np.sin(2 * phi), np.cos(2 * phi)
+    sp2, cp2 = np.sin(phi) ** 2, np.cos(phi) ** 2
+    psi_row = (
+        dpsi * dtheta * np.sin(2 * theta) * (A * sp2 + B * cp2 - C)
+        + dpsi * dphi * (A - B) * st**2 * s2p
+        + dtheta * dphi * st * ((A - B) * c2p - C)
+        + 0.5 * dtheta**2 * (A - B) * ct * s2p
+    )
+    theta_row = (
+        -0.5 * dpsi**2 * np.sin(2 * theta) * (A * sp2 + B * cp2 - C)
+        + dpsi * dphi * st * ((A - B) * c2p + C)
+        - dtheta * dphi * (A - B) * s2p
+    )
+    phi_row = (
+        -0.5 * dpsi**2 * (A - B) * st**2 * s2p
+        - dpsi * dtheta * st * ((A - B) * c2p + C)
+        + 0.5 * dtheta**2 * (A - B) * s2p
+    )
+    return np.array([psi_row, theta_row, phi_row])
