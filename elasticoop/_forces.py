@@ -99,7 +99,8 @@ def generalized_wrench(
     """Map a physical wrench at a body's mass centre to its generalized force.
 
     The force enters unchanged (world axes); the torque $\\tau$ maps through the
-    virtual-work identity $\\tau\\cdot\\omega = Q_{\\mathcal A}\\cdot\\dot{\\mathcal A}$:
+    virtual-work identity
+    $\\tau\\cdot\\omega = Q_{\\mathcal A}\\cdot\\dot{\\mathcal A}$:
     $Q_{\\mathcal A} = L_\\omega^T \\tau$ for a body-frame torque and
     $L_\\omega^T R^T \\tau$ for a world-frame one.
 

@@ -21,7 +21,8 @@ from ._rotations import AbstractRotation
 
 def _body_terms(body: RigidBody, rotation: AbstractRotation, y: BodyState, ydot):
     """$W_i$ and the velocity terms
-    $(\\partial^2 T_i/\\partial\\dot y_i \\partial y_i)\\dot y_i - \\partial T_i/\\partial y_i$
+    $(\\partial^2 T_i/\\partial\\dot y_i \\partial y_i)\\dot y_i
+    - \\partial T_i/\\partial y_i$
     of one body."""
 
     def energy(q, v):
@@ -66,7 +67,8 @@ def accelerations(model: AbstractElasticModel, y: State, ydot: State, applied: S
     **Arguments:** the model, $Y$, $\\dot Y$ and the applied generalized forces $F$
     (all `(bodies, 6)`).
 
-    **Returns:** `(yddot, damping)`, the accelerations and $\\partial R/\\partial\\dot Y$
+    **Returns:** `(yddot, damping)`, the accelerations and
+    $\\partial R/\\partial\\dot Y$
     (whose product with $\\dot Y$ is the dissipated power $2R$).
     """
     W, c = _per_body(model.bodies, model.rotation, y, ydot)

@@ -43,8 +43,12 @@ def run_default(rtol: float = 1e-8, atol: float = 1e-10) -> dict:
         "wall_time": wall,
         "object_displacement": (y[-1, 0, :3] - y[0, 0, :3]).tolist(),
         "object_rotation": (y[-1, 0, 3:] - y[0, 0, 3:]).tolist(),
-        "peak_force": np.max(np.linalg.norm(wrench[:, :, :3], axis=-1), axis=0).tolist(),
-        "peak_torque": np.max(np.linalg.norm(wrench[:, :, 3:], axis=-1), axis=0).tolist(),
+        "peak_force": np.max(
+            np.linalg.norm(wrench[:, :, :3], axis=-1), axis=0
+        ).tolist(),
+        "peak_torque": np.max(
+            np.linalg.norm(wrench[:, :, 3:], axis=-1), axis=0
+        ).tolist(),
         "energy": {
             "kinetic_final": float(kinetic[-1]),
             "elastic_final": float(elastic[-1]),

@@ -45,9 +45,7 @@ class PoseTracking(AbstractForce):
         ref_rate = self.height * rate * lift
         grasps, rates = y[1:], ydot[1:]
         return (
-            self.feedforward
-            + self.kp * (ref - grasps)
-            + self.kd * (ref_rate - rates)
+            self.feedforward + self.kp * (ref - grasps) + self.kd * (ref_rate - rates)
         )
 
 

@@ -7,8 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._forces import AbstractForce, SampledForce, as_force, check_force_shape
-from ._forces import pad_to_bodies
+from ._forces import (
+    AbstractForce,
+    SampledForce,
+    as_force,
+    check_force_shape,
+    pad_to_bodies,
+)
 from ._lagrange import accelerations
 from ._models import AbstractElasticModel, MobileModel
 from ._trajectory import Status, Trajectory, describe
@@ -16,7 +21,7 @@ from ._validation import as_float_array, is_concrete, require
 
 # Documented thresholds of the two singularities a run stops at.
 GIMBAL_TOL = 1e-3  # |sin theta| (ZXZ) or |cos pitch| (RPY)
-LINK_TOL = 1e-9  # |r_i - r_j| [m]
+LINK_TOL = 1e-3  # |r_i - r_j| relative to the rest length rho_0
 
 
 class SimulationError(RuntimeError):
@@ -69,8 +74,9 @@ def simulate(
       `grad`; `True` raises in both cases; `False` never raises.
     - `gimbal_tol`: the run stops when a body's $|\\sin\\theta|$ (ZXZ) or
       $|\\cos(\\text{pitch})|$ (RPY) falls below this.
-    - `link_tol`: the run stops when a link's length $|r_i - r_j|$ falls below this
-      [m] (`MobileModel`).
+    - `link_tol`: the run stops when a link with rest length $\\rho_0 > 0$ shrinks to
+      $|r_i - r_j| <$ `link_tol` $\\rho_0$ (`MobileModel`; a link with $\\rho_0 = 0$
+      is smooth through $r_i = r_j$ and never stops a run).
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces, and `jax.vmap`-able over any of them.
@@ -85,9 +91,7 @@ def simulate(
     ts = as_float_array(ts, "ts", (None,))
     if ts.shape[0] < 2:
         raise ValueError(f"ts needs at least 2 times, got {ts.shape[0]}")
-    ts = require(
-        ts, jnp.all(jnp.diff(ts) > 0), "ts must be strictly increasing", ts
-    )
+    ts = require(ts, jnp.all(jnp.diff(ts) > 0), "ts must be strictly increasing", ts)
     force = as_force(forces)
     if force is not None:
         shape = jax.eval_shape(force, ts[0], y_init, ydot_init).shape
@@ -105,7 +109,7 @@ def simulate(
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive number, got {value!r}")
     if is_concrete(y_init):
-        reg = np.asarray(jax.vmap(model.rotation.regularity)(y_init[:, 3:]))
+        reg = np.abs(np.asarray(_regularity(model, y_init)))
         if np.any(reg < gimbal_tol):
             body = int(np.argmin(reg))
             raise ValueError(
@@ -148,7 +152,7 @@ def simulate(
 
 
 def _vector_field(t, state, args):
-    model, force = args
+    model, force, _ = args
     y, ydot, _, _ = state
     if force is None:
         applied = jnp.zeros_like(y)
@@ -160,6 +164,12 @@ def _vector_field(t, state, args):
 
 def _regularity(model, y):
     return jax.vmap(model.rotation.regularity)(y[:, 3:])
+
+
+def _link_margin(model, y, link_tol):
+    """$|r_i - r_j| - tol\\,\\rho_0$ per link; links with $\\rho_0 = 0$ never stop."""
+    margin = model.link_lengths(y) - link_tol * model.rest_length
+    return jnp.where(model.rest_length > 0, margin, jnp.inf)
 
 
 @eqx.filter_jit
@@ -181,18 +191,21 @@ def _solve(
     # A start at the singularity (only possible when traced) is flagged, and a
     # regular orientation is integrated instead so the batch stays finite.
     reg0 = _regularity(model, y_init)
-    singular0 = jnp.any(reg0 < gimbal_tol)
+    singular0 = jnp.any(jnp.abs(reg0) < gimbal_tol)
+    # The signed measure keeps its initial sign until the singularity is crossed,
+    # so `side * measure - tol` changes sign even when one step jumps the band.
+    side = jnp.where(reg0 < 0, -1.0, 1.0)
     regular = jnp.asarray(model.rotation.regular_angles)
     y_start = jnp.where(singular0, y_init.at[:, 3:].set(regular), y_init)
 
     def gimbal(t, y, args, **kwargs):
-        return jnp.min(_regularity(args[0], y[0])) - gimbal_tol
+        return jnp.min(args[2] * _regularity(args[0], y[0])) - gimbal_tol
 
     cond_fns = [gimbal]
     if isinstance(model, MobileModel) and model.n_connections > 0:
 
         def collapse(t, y, args, **kwargs):
-            return jnp.min(args[0].link_lengths(y[0])) - link_tol
+            return jnp.min(_link_margin(args[0], y[0], link_tol))
 
         cond_fns.append(collapse)
     event = diffrax.Event(
@@ -210,7 +223,7 @@ def _solve(
         t1=ts[-1],
         dt0=dt0,
         y0=(y_start, ydot_init, zero, zero),
-        args=(model, force),
+        args=(model, force, side),
         saveat=diffrax.SaveAt(ts=ts, t1=True),
         stepsize_controller=controller,
         adjoint=adjoint,
@@ -219,8 +232,11 @@ def _solve(
         throw=False,
     )
     y_all, ydot_all, work, dissipated = sol.ys
-    t_end = sol.ts[-1]
-    y_end = y_all[-1]
+    # With SaveAt(ts, t1) the final state follows the last saved time <= t_end
+    # (diffrax compacts the outputs), and the unused entries are inf.
+    last = jnp.argmax(jnp.where(jnp.isfinite(sol.ts), sol.ts, -jnp.inf))
+    t_end = sol.ts[last]
+    y_end = y_all[last]
 
     event_hit = sol.result == diffrax.RESULTS.event_occurred
     gimbal_hit = event_hit & sol.event_mask[0]
@@ -243,12 +259,16 @@ def _solve(
         Status.SUCCESS,
     )
     if len(cond_fns) > 1:
-        worst_link = jnp.argmin(model.link_lengths(y_end))
+        worst_link = jnp.argmin(_link_margin(model, y_end, link_tol))
     else:
         worst_link = jnp.asarray(-1)
     index = jnp.select(
         [singular0, gimbal_hit, collapse_hit],
-        [jnp.argmin(reg0), jnp.argmin(_regularity(model, y_end)), worst_link],
+        [
+            jnp.argmin(jnp.abs(reg0)),
+            jnp.argmin(side * _regularity(model, y_end)),
+            worst_link,
+        ],
         -1,
     )
     event_time = jnp.where(singular0, ts[0], t_end)

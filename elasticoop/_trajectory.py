@@ -123,8 +123,9 @@ def describe(traj: Trajectory) -> str:
     if status == Status.LINK_COLLAPSED:
         i, j = (int(v) for v in jnp.asarray(traj.model.pairs)[k])
         return (
-            f"connection {k} between bodies {i} and {j} collapsed (|r_i - r_j| "
-            f"reached zero) at t = {t:.9g} s; its deflection has no direction there"
+            f"connection {k} between bodies {i} and {j} collapsed (|r_i - r_j| fell "
+            f"below link_tol x rest length) at t = {t:.9g} s; its deflection has no "
+            f"direction at zero length"
         )
     if status == Status.MAX_STEPS_REACHED:
         return (

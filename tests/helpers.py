@@ -31,8 +31,10 @@ def three_body_model(convention="zxz", damping=True, gravity=9.81, stiffness=Non
         eo.RigidBody(0.25, (1.5e-3, 2.5e-3, 3e-3)),
     ]
     if stiffness is None:
-        stiffness = [(800.0, 900.0, 1000.0, 20.0, 25.0, 30.0),
-                     (700.0, 850.0, 950.0, 22.0, 18.0, 26.0)]
+        stiffness = [
+            (800.0, 900.0, 1000.0, 20.0, 25.0, 30.0),
+            (700.0, 850.0, 950.0, 22.0, 18.0, 26.0),
+        ]
     damp = [(3.0, 2.5, 2.0, 0.05, 0.04, 0.06), (2.0, 3.5, 2.2, 0.03, 0.05, 0.04)]
     if not damping:
         damp = [(0.0,) * 6] * 2

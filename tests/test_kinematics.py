@@ -28,7 +28,9 @@ def _random_body_and_state(rng):
 
 
 def _rel(a, b):
-    return np.max(np.abs(np.asarray(a) - np.asarray(b))) / max(np.max(np.abs(b)), 1e-300)
+    return np.max(np.abs(np.asarray(a) - np.asarray(b))) / max(
+        np.max(np.abs(b)), 1e-300
+    )
 
 
 @pytest.mark.parametrize("seed", range(6))

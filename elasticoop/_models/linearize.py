@@ -47,9 +47,7 @@ def linearize_mobile(model: MobileModel, y0) -> ImmobileModel:
             )
     flat = y0.reshape(n)
     K = jax.hessian(lambda q: model.potential(q.reshape(y0.shape)))(flat)
-    D = jax.hessian(lambda v: model.dissipation(y0, v.reshape(y0.shape)))(
-        jnp.zeros(n)
-    )
+    D = jax.hessian(lambda v: model.dissipation(y0, v.reshape(y0.shape)))(jnp.zeros(n))
     return ImmobileModel(
         model.bodies,
         0.5 * (K + K.T),

@@ -19,7 +19,8 @@ class Connection(eqx.Module):
     **Arguments:**
 
     - `i`, `j`: body indices (0 is the object), `i != j`.
-    - `stiffness`: $(c^x, c^y, c^z, c^{a_1}, c^{a_2}, c^{a_3})$, $\\ge 0$ [N/m, N m/rad].
+    - `stiffness`: $(c^x, c^y, c^z, c^{a_1}, c^{a_2}, c^{a_3})$, $\\ge 0$
+      [N/m, N m/rad].
     - `damping`: the six diagonal entries of $D^\\delta$ and $D^{\\mathcal A}$,
       $\\ge 0$ [N s/m, N m s/rad].
     - `rest_length`: $\\rho_{ij0} \\ge 0$ [m], the unloaded length of the link.
@@ -34,14 +35,20 @@ class Connection(eqx.Module):
     rest_length: Scalar
     rest_angles: Vector3
 
-    def __init__(self, i, j, stiffness, damping, rest_length=0.0, rest_angles=(0, 0, 0)):
+    def __init__(
+        self, i, j, stiffness, damping, rest_length=0.0, rest_angles=(0, 0, 0)
+    ):
         for name, value in (("i", i), ("j", j)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer):
-                raise ValueError(f"Connection.{name} must be a body index, got {value!r}")
+                raise ValueError(
+                    f"Connection.{name} must be a body index, got {value!r}"
+                )
             if value < 0:
                 raise ValueError(f"Connection.{name} must be >= 0, got {value}")
         if i == j:
-            raise ValueError(f"Connection must join two different bodies, got i = j = {i}")
+            raise ValueError(
+                f"Connection must join two different bodies, got i = j = {i}"
+            )
         self.i, self.j = int(i), int(j)
         label = f"Connection({i}, {j})"
         stiffness = as_float_array(stiffness, f"{label}.stiffness", (6,))
@@ -65,13 +72,14 @@ class Connection(eqx.Module):
 def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
     """Deflection of a link, $\\delta = (1 - \\rho_0/|d|)\\, d$, $d = r_i - r_j$.
 
-    Singular at $|d| = 0$; the value there is guarded (0 instead of NaN, also for
-    gradients) and `simulate` stops with an error before a link collapses.
+    For $\\rho_0 > 0$ it is singular at $|d| = 0$ (the direction is lost): the value
+    there is guarded (no NaN, also in gradients) and `simulate` stops with an error
+    before a link collapses. For $\\rho_0 = 0$ it is simply $d$, smooth everywhere.
     """
     sq = d @ d
     ok = sq > 0
     length = jnp.sqrt(jnp.where(ok, sq, 1.0))
-    return jnp.where(ok, (1.0 - rest_length / length) * d, 0.0)
+    return d - jnp.where(ok, rest_length / length, 0.0) * d
 
 
 def connection_potential(stiffness, rest_length, rest_angles, yi, yj) -> Scalar:

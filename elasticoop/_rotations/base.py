@@ -29,17 +29,21 @@ class AbstractRotation(eqx.Module):
 
     @abc.abstractmethod
     def angular_velocity_matrix(self, angles: Vector3) -> Matrix3:
-        """$L_\\omega(\\mathcal{A})$ with $\\omega_{body} = L_\\omega \\dot{\\mathcal{A}}$."""
+        """$L_\\omega(\\mathcal{A})$, with
+        $\\omega_{body} = L_\\omega \\dot{\\mathcal{A}}$."""
 
     @abc.abstractmethod
     def regularity(self, angles: Vector3) -> Scalar:
-        """A measure that is zero exactly at the sequence's singularity.
+        """A signed measure that vanishes exactly at the sequence's singularity:
+        $\\sin\\theta$ for ZXZ, $\\cos(\\text{pitch})$ for RPY ($\\pm\\det L_\\omega$).
 
-        $|\\det L_\\omega|$: $|\\sin\\theta|$ for ZXZ, $|\\cos(\\text{pitch})|$ for RPY.
+        Its sign cannot change without passing through the singularity, which lets
+        `simulate` detect a crossing even inside one solver step.
         """
 
     def angular_velocity(self, angles: Vector3, angle_rates: Vector3) -> Vector3:
-        """Body-frame angular velocity $\\omega = L_\\omega(\\mathcal{A})\\dot{\\mathcal{A}}$."""
+        """Body-frame angular velocity
+        $\\omega = L_\\omega(\\mathcal{A})\\dot{\\mathcal{A}}$."""
         return self.angular_velocity_matrix(angles) @ angle_rates
 
 

@@ -32,9 +32,7 @@ class RPY(AbstractRotation):
         sr, cr = jnp.sin(roll), jnp.cos(roll)
         sp, cp = jnp.sin(pitch), jnp.cos(pitch)
         zero, one = jnp.zeros_like(pitch), jnp.ones_like(pitch)
-        return jnp.array(
-            [[one, zero, -sp], [zero, cr, sr * cp], [zero, -sr, cr * cp]]
-        )
+        return jnp.array([[one, zero, -sp], [zero, cr, sr * cp], [zero, -sr, cr * cp]])
 
     def regularity(self, angles: Vector3) -> Scalar:
-        return jnp.abs(jnp.cos(angles[1]))
+        return jnp.cos(angles[1])

@@ -32,9 +32,7 @@ class ZXZ(AbstractRotation):
         st, ct = jnp.sin(theta), jnp.cos(theta)
         sp, cp = jnp.sin(phi), jnp.cos(phi)
         zero, one = jnp.zeros_like(theta), jnp.ones_like(theta)
-        return jnp.array(
-            [[st * sp, cp, zero], [st * cp, -sp, zero], [ct, zero, one]]
-        )
+        return jnp.array([[st * sp, cp, zero], [st * cp, -sp, zero], [ct, zero, one]])
 
     def regularity(self, angles: Vector3) -> Scalar:
-        return jnp.abs(jnp.sin(angles[1]))
+        return jnp.sin(angles[1])

@@ -1,0 +1,244 @@
+"""Bad input raises a clear error naming the field; singularities are reported."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import three_body_model, three_body_state
+
+import elasticoop as eo
+
+UP = (0.0, np.pi / 2, 0.0)
+BODY = eo.RigidBody(1.0, (0.1, 0.2, 0.25))
+CONN = dict(stiffness=[100.0] * 6, damping=[1.0] * 6)
+
+
+def _K(n=2):
+    model = three_body_model() if n == 3 else None
+    del model
+    k = np.zeros((6 * n, 6 * n))
+    k[0, 0] = k[6, 6] = 10.0
+    k[0, 6] = k[6, 0] = -10.0
+    return k
+
+
+BAD_INPUTS = {
+    "negative mass": (lambda: eo.RigidBody(-1.0, (1, 1, 1)), "RigidBody.mass"),
+    "zero inertia": (lambda: eo.RigidBody(1.0, (0, 1, 1)), "RigidBody.inertia"),
+    "triangle inequality": (
+        lambda: eo.RigidBody(1.0, (0.1, 0.1, 0.5)),
+        "triangle inequality",
+    ),
+    "inertia shape": (lambda: eo.RigidBody(1.0, (1, 1)), r"RigidBody.inertia.*shape"),
+    "nan mass": (
+        lambda: eo.RigidBody(np.nan, (1, 1, 1)),
+        "RigidBody.mass must be finite",
+    ),
+    "connection i == j": (lambda: eo.Connection(1, 1, **CONN), "different bodies"),
+    "connection index negative": (lambda: eo.Connection(-1, 0, **CONN), "Connection.i"),
+    "connection index out of range": (
+        lambda: eo.MobileModel([BODY, BODY], [eo.Connection(0, 2, **CONN)]),
+        "refers to body 2",
+    ),
+    "negative rest length": (
+        lambda: eo.Connection(0, 1, **CONN, rest_length=-0.1),
+        "rest_length must be >= 0",
+    ),
+    "negative stiffness": (
+        lambda: eo.Connection(0, 1, stiffness=[-1.0] + [1.0] * 5, damping=[0.0] * 6),
+        r"Connection\(0, 1\).stiffness",
+    ),
+    "stiffness shape": (
+        lambda: eo.Connection(0, 1, stiffness=[1.0] * 5, damping=[0.0] * 6),
+        r"stiffness must have shape \(6\)",
+    ),
+    "inf damping": (
+        lambda: eo.Connection(0, 1, stiffness=[1.0] * 6, damping=[np.inf] + [0.0] * 5),
+        "damping must be finite",
+    ),
+    "unknown convention": (
+        lambda: eo.MobileModel([BODY], convention="xyz"),
+        "convention",
+    ),
+    "K wrong shape": (
+        lambda: eo.ImmobileModel(
+            [BODY, BODY], np.eye(6), np.zeros((12, 12)), np.zeros((2, 6))
+        ),
+        r"ImmobileModel.K must have shape \(12, 12\)",
+    ),
+    "K not symmetric": (
+        lambda: eo.ImmobileModel(
+            [BODY, BODY],
+            _K() + np.triu(np.ones((12, 12)), 1),
+            np.zeros((12, 12)),
+            np.zeros((2, 6)),
+        ),
+        "K must be symmetric",
+    ),
+    "K indefinite": (
+        lambda: eo.ImmobileModel(
+            [BODY, BODY], -_K(), np.zeros((12, 12)), np.zeros((2, 6))
+        ),
+        "K must be positive semidefinite",
+    ),
+    "rank K > 6m": (
+        lambda: eo.ImmobileModel(
+            [BODY, BODY], np.eye(12), np.zeros((12, 12)), np.zeros((2, 6))
+        ),
+        r"rank K must be <= 6m = 6.*got rank K = 12",
+    ),
+    "D indefinite": (
+        lambda: eo.ImmobileModel([BODY, BODY], _K(), -np.eye(12), np.zeros((2, 6))),
+        "D must be positive semidefinite",
+    ),
+    "y0 nan": (
+        lambda: eo.ImmobileModel(
+            [BODY, BODY], _K(), np.zeros((12, 12)), np.full((2, 6), np.nan)
+        ),
+        "ImmobileModel.y0 must be finite",
+    ),
+    "negative gravity": (lambda: eo.MobileModel([BODY], gravity=-9.81), "gravity"),
+    "not a body": (lambda: eo.MobileModel([BODY, "arm"]), r"bodies\[1\]"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_bad_model_input_raises_clear_error(case):
+    build, match = BAD_INPUTS[case]
+    with pytest.raises(ValueError, match=match):
+        build()
+
+
+MODEL = three_body_model()
+Y = three_body_state()
+TS = jnp.linspace(0.0, 0.1, 5)
+
+BAD_SIMULATE = {
+    "y_init shape": (dict(y_init=Y[:2]), r"y_init must have shape \(3, 6\)"),
+    "y_init nan": (dict(y_init=Y.at[0, 0].set(jnp.nan)), "y_init must be finite"),
+    "ydot_init inf": (
+        dict(ydot_init=jnp.full((3, 6), jnp.inf)),
+        "ydot_init must be finite",
+    ),
+    "ts decreasing": (dict(ts=TS[::-1]), "ts must be strictly increasing"),
+    "ts repeated": (
+        dict(ts=jnp.array([0.0, 0.1, 0.1])),
+        "ts must be strictly increasing",
+    ),
+    "ts single": (dict(ts=jnp.array([0.0])), "at least 2 times"),
+    "ts nan": (dict(ts=TS.at[2].set(jnp.nan)), "ts must be finite"),
+    "force shape": (dict(forces=jnp.zeros((5, 6))), r"forces must give shape \(2, 6\)"),
+    "force nan": (
+        dict(forces=jnp.full((2, 6), jnp.nan)),
+        "ConstantForce.F must be finite",
+    ),
+    "sampled force too short": (
+        dict(forces=eo.SampledForce(jnp.array([0.0, 0.05]), jnp.zeros((2, 2, 6)))),
+        "SampledForce samples only cover",
+    ),
+    "start at gimbal lock": (
+        dict(y_init=Y.at[1, 4].set(0.0)),
+        r"body 1 starts at gimbal lock",
+    ),
+    "rtol": (dict(rtol=-1.0), "rtol must be a positive number"),
+    "model": (dict(model="beam"), "model must be an ImmobileModel or MobileModel"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_SIMULATE))
+def test_bad_simulate_input_raises_clear_error(case):
+    kwargs, match = BAD_SIMULATE[case]
+    args = dict(model=MODEL, y_init=Y, ydot_init=jnp.zeros((3, 6)), ts=TS)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        eo.simulate(**args)
+
+
+# A free body spinning about its body-x (= world-x) axis: theta(t) = theta0 + w t
+# exactly, so the time the gimbal-lock threshold is reached is known in closed form.
+THETA0, RATE = 0.5, -2.0
+SPINNER = eo.MobileModel([BODY], gravity=0.0)
+
+
+def _spin(rate):
+    y0 = jnp.array([[0.0, 0.0, 0.0, 0.0, THETA0, 0.0]])
+    ydot0 = jnp.array([[0.0, 0.0, 0.0, 0.0, rate, 0.0]])
+    return y0, ydot0
+
+
+def test_gimbal_lock_raises_with_body_and_time():
+    y0, ydot0 = _spin(RATE)
+    t_lock = (THETA0 - np.arcsin(eo.GIMBAL_TOL)) / abs(RATE)
+    with pytest.raises(eo.SimulationError, match=r"gimbal lock: body 0") as info:
+        eo.simulate(SPINNER, y0, ydot0, jnp.linspace(0.0, 1.0, 11))
+    traj = info.value.trajectory
+    assert int(traj.status) == eo.Status.GIMBAL_LOCK
+    np.testing.assert_allclose(float(traj.event_time), t_lock, rtol=1e-8)
+    assert f"t = {float(traj.event_time):.9g} s" in str(info.value)
+    assert "convention='rpy'" in str(info.value)
+    # samples after the stop are NaN, before it finite
+    assert np.all(np.isnan(np.asarray(traj.y)[np.asarray(traj.ts) > t_lock]))
+    assert np.all(np.isfinite(np.asarray(traj.y)[np.asarray(traj.ts) < t_lock]))
+
+
+def test_gimbal_lock_in_a_batch_is_flagged_not_raised():
+    rates = jnp.array([0.3, RATE, -0.2])
+
+    def run(rate):
+        y0, ydot0 = _spin(rate)
+        return eo.simulate(SPINNER, y0, ydot0, jnp.linspace(0.0, 1.0, 11))
+
+    batch = jax.vmap(run)(rates)
+    np.testing.assert_array_equal(batch.status, [0, eo.Status.GIMBAL_LOCK, 0])
+    np.testing.assert_array_equal(batch.event_index, [-1, 0, -1])
+    single = run(rates[0])
+    np.testing.assert_allclose(batch.y[0], single.y, rtol=1e-13)
+    # throw=True raises even when traced
+    with pytest.raises(Exception, match="simulation stopped early"):
+        jax.vmap(
+            lambda r: (
+                eo.simulate(
+                    SPINNER, *_spin(r), jnp.linspace(0.0, 1.0, 11), throw=True
+                ).y
+            )
+        )(rates).block_until_ready()
+
+
+def test_collapsed_link_raises():
+    """Two bodies rush together through a link of rest length rho: in 1-D the
+    separation is x(t) = rho - (v/omega) sin(omega t) until the link collapses."""
+    c, m, rho, v = 100.0, 1.0, 0.1, 2.0
+    bodies = [eo.RigidBody(m, (0.1, 0.1, 0.1))] * 2
+    link = eo.Connection(0, 1, stiffness=[c] * 6, damping=[0.0] * 6, rest_length=rho)
+    model = eo.MobileModel(bodies, [link], gravity=0.0)
+    y0 = jnp.array([[rho / 2, 0, 0, *UP], [-rho / 2, 0, 0, *UP]])
+    ydot0 = jnp.zeros_like(y0).at[0, 0].set(-v / 2).at[1, 0].set(v / 2)
+    ts = jnp.linspace(0, 0.2, 5)
+    with pytest.raises(
+        eo.SimulationError, match=r"connection 0 between bodies 0 and 1"
+    ):
+        eo.simulate(model, y0, ydot0, ts)
+    traj = eo.simulate(model, y0, ydot0, ts, throw=False)
+    assert int(traj.status) == eo.Status.LINK_COLLAPSED
+    omega = np.sqrt(c / (m / 2))
+    t_hit = np.arcsin((1 - eo.LINK_TOL) * rho * omega / v) / omega
+    np.testing.assert_allclose(float(traj.event_time), t_hit, rtol=1e-8)
+
+
+def test_zero_rest_length_link_passes_through_zero_smoothly():
+    c, m = 100.0, 1.0
+    bodies = [eo.RigidBody(m, (0.1, 0.1, 0.1))] * 2
+    link = eo.Connection(0, 1, stiffness=[c] * 6, damping=[0.0] * 6)
+    model = eo.MobileModel(bodies, [link], gravity=0.0)
+    y0 = jnp.array([[0.1, 0, 0, *UP], [-0.1, 0, 0, *UP]])
+    ts = jnp.linspace(0, 0.5, 11)
+    traj = eo.simulate(model, y0, jnp.zeros_like(y0), ts, rtol=1e-11, atol=1e-13)
+    omega = np.sqrt(c / (m / 2))
+    np.testing.assert_allclose(traj.y[:, 0, 0], 0.1 * np.cos(omega * ts), atol=1e-9)
+
+
+def test_max_steps_is_reported():
+    with pytest.raises(eo.SimulationError, match="max_steps"):
+        eo.simulate(
+            MODEL, Y.at[1, 0].add(-0.02), jnp.zeros((3, 6)), TS * 10, max_steps=3
+        )

@@ -1,0 +1,34 @@
+"""The main job: the built-in scenario runs and its energy balance closes."""
+
+import subprocess
+import sys
+
+from elasticoop._main import format_summary, run_default
+
+# The balance closes to the solver's tolerance (rtol 1e-8) times the energies.
+BALANCE_RTOL = 1e-6
+
+
+def test_default_scenario_energy_balance_closes():
+    summary = run_default()
+    energy = summary["energy"]
+    assert energy["work_of_forces"] > 1.0  # the arms lift the beam
+    assert energy["dissipated"] > 0.0
+    assert energy["relative_residual"] < BALANCE_RTOL
+    dz = summary["object_displacement"][2]
+    assert 0.0 < dz < 0.2  # lifted, less than the arms (the beam sags in the grasps)
+    assert len(summary["peak_force"]) == 2
+    text = format_summary(summary)
+    assert "energy balance" in text and "grasp 2" in text
+
+
+def test_python_dash_m_runs_the_demo():
+    out = subprocess.run(
+        [sys.executable, "-m", "elasticoop"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "peak elastic force per grasp" in out.stdout
+    assert "residual" in out.stdout
