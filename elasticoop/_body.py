@@ -46,8 +46,8 @@ class RigidBody(eqx.Module):
             "(A + B >= C, B + C >= A, C + A >= B)",
             inertia,
         )
-        self.mass = mass
-        self.inertia = inertia
+        self.mass = jnp.asarray(mass)
+        self.inertia = jnp.asarray(inertia)
 
 
 def stack_bodies(bodies) -> RigidBody:

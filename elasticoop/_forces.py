@@ -37,7 +37,7 @@ class ConstantForce(AbstractForce):
     F: jnp.ndarray
 
     def __init__(self, F):
-        self.F = as_float_array(F, "ConstantForce.F", (None, 6))
+        self.F = jnp.asarray(as_float_array(F, "ConstantForce.F", (None, 6)))
 
     def __call__(self, t, y, ydot):
         return self.F
@@ -58,10 +58,13 @@ class SampledForce(AbstractForce):
             raise ValueError(
                 f"SampledForce.ts needs at least 2 samples, got {ts.shape[0]}"
             )
-        self.ts = require(
-            ts, jnp.all(jnp.diff(ts) > 0), "SampledForce.ts must be increasing", ts
+        ts = require(
+            ts, (ts[1:] > ts[:-1]).all(), "SampledForce.ts must be increasing", ts
         )
-        self.F = as_float_array(F, "SampledForce.F", (ts.shape[0], None, 6))
+        self.ts = jnp.asarray(ts)
+        self.F = jnp.asarray(
+            as_float_array(F, "SampledForce.F", (ts.shape[0], None, 6))
+        )
 
     def __call__(self, t, y, ydot):
         return diffrax.LinearInterpolation(ts=self.ts, ys=self.F).evaluate(t)
@@ -117,9 +120,10 @@ def generalized_wrench(
     if frame not in ("world", "body"):
         raise ValueError(f"frame must be 'world' or 'body', got {frame!r}")
     rotation = get_rotation(convention)
-    angles = as_float_array(angles, "angles", (3,))
-    force = as_float_array(force, "force", (3,))
-    torque = as_float_array(torque, "torque", (3,))
+    angles, force, torque = (
+        jnp.asarray(as_float_array(v, name, (3,)))
+        for v, name in ((angles, "angles"), (force, "force"), (torque, "torque"))
+    )
     R = rotation.matrix(angles)
     L = rotation.angular_velocity_matrix(angles)
     if frame == "world":

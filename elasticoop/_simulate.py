@@ -91,7 +91,8 @@ def simulate(
     ts = as_float_array(ts, "ts", (None,))
     if ts.shape[0] < 2:
         raise ValueError(f"ts needs at least 2 times, got {ts.shape[0]}")
-    ts = require(ts, jnp.all(jnp.diff(ts) > 0), "ts must be strictly increasing", ts)
+    ts = require(ts, (ts[1:] > ts[:-1]).all(), "ts must be strictly increasing", ts)
+    y_init, ydot_init, ts = (jnp.asarray(x) for x in (y_init, ydot_init, ts))
     force = as_force(forces)
     if force is not None:
         shape = jax.eval_shape(force, ts[0], y_init, ydot_init).shape

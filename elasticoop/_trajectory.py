@@ -57,7 +57,7 @@ class Trajectory(eqx.Module):
         return self.status == Status.SUCCESS
 
     def _over_time(self, fn, *fields):
-        return jax.vmap(fn)(*fields)
+        return _map_over_time(fn, *fields)
 
     def kinetic_energy(self) -> Times:
         """$T(t)$ [J]."""
@@ -103,6 +103,13 @@ class Trajectory(eqx.Module):
     def message(self) -> str:
         """A sentence describing `status` (for a single, un-batched trajectory)."""
         return describe(self)
+
+
+@eqx.filter_jit
+def _map_over_time(fn, *fields):
+    # `fn` is a bound method of the model (an equinox pytree): compiled once per
+    # method and model structure.
+    return jax.vmap(fn)(*fields)
 
 
 def describe(traj: Trajectory) -> str:

@@ -27,7 +27,9 @@ def _show(value) -> str:
 def as_float_array(value, name: str, shape: Sequence[int | None] | None = None):
     """Convert to a float64 array, checking shape and finiteness.
 
-    `shape` entries of `None` accept any length along that axis.
+    `shape` entries of `None` accept any length along that axis. Concrete input
+    comes back as a NumPy array (convert with `jnp.asarray` when storing it), traced
+    input as a JAX array.
     """
     if isinstance(value, jax.core.Tracer):
         arr = value.astype(jnp.float64) if value.dtype != jnp.float64 else value
@@ -46,8 +48,15 @@ def as_float_array(value, name: str, shape: Sequence[int | None] | None = None):
         if not ok:
             want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
             raise ValueError(f"{name} must have shape {want}, got shape {arr.shape}")
-    arr = jnp.asarray(arr, dtype=jnp.float64)
+    if isinstance(arr, np.ndarray):
+        # concrete input: validate with NumPy (no JAX dispatch or compilation)
+        return require(arr, np.all(np.isfinite(arr)), f"{name} must be finite", arr)
     return require(arr, jnp.all(jnp.isfinite(arr)), f"{name} must be finite", arr)
+
+
+def xp(*arrays):
+    """NumPy for concrete arrays, jax.numpy for traced ones."""
+    return np if is_concrete(*arrays) else jnp
 
 
 def require(x, ok, message: str, shown=None):

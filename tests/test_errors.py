@@ -242,3 +242,11 @@ def test_max_steps_is_reported():
         eo.simulate(
             MODEL, Y.at[1, 0].add(-0.02), jnp.zeros((3, 6)), TS * 10, max_steps=3
         )
+
+
+def test_traced_bad_value_raises_at_run_time():
+    """Under jit the value checks go through eqx.error_if and still name the field."""
+    with pytest.raises(Exception, match="RigidBody.mass must be positive"):
+        jax.jit(lambda m: eo.RigidBody(m, (1.0, 1.0, 1.0)).mass)(
+            -1.0
+        ).block_until_ready()

@@ -7,7 +7,7 @@ import numpy as np
 from .._body import RigidBody, stack_bodies
 from .._custom_types import Scalar, State
 from .._rotations import get_rotation
-from .._validation import as_float_array, is_concrete, require
+from .._validation import as_float_array, is_concrete, require, xp
 from .base import AbstractElasticModel, _rank
 
 # Relative tolerances for "K is symmetric" and "K is positive semidefinite".
@@ -17,16 +17,17 @@ PSD_RTOL = 1e-9
 
 def check_symmetric_psd(matrix, name: str):
     """Validate a symmetric positive semidefinite matrix (works traced or not)."""
-    scale = jnp.maximum(jnp.max(jnp.abs(matrix)), 1e-300)
-    asym = jnp.max(jnp.abs(matrix - matrix.T))
+    np_ = xp(matrix)
+    scale = np_.maximum(np_.max(np_.abs(matrix)), 1e-300)
+    asym = np_.max(np_.abs(matrix - matrix.T))
     matrix = require(
         matrix,
         asym <= SYMMETRY_RTOL * scale,
         f"{name} must be symmetric; largest |{name} - {name}^T| is",
         asym,
     )
-    eig = jnp.linalg.eigvalsh(0.5 * (matrix + matrix.T))
-    low = jnp.min(eig) if eig.size else jnp.zeros(())
+    eig = np_.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    low = np_.min(eig) if eig.size else np_.zeros(())
     return require(
         matrix,
         low >= -PSD_RTOL * scale,
@@ -37,7 +38,8 @@ def check_symmetric_psd(matrix, name: str):
 
 def check_gravity(gravity) -> Scalar:
     gravity = as_float_array(gravity, "gravity", ())
-    return require(gravity, gravity >= 0, "gravity must be >= 0 [m/s^2]", gravity)
+    gravity = require(gravity, gravity >= 0, "gravity must be >= 0 [m/s^2]", gravity)
+    return jnp.asarray(gravity)
 
 
 class ImmobileModel(AbstractElasticModel):
@@ -76,8 +78,8 @@ class ImmobileModel(AbstractElasticModel):
         size = 6 * n
         K = as_float_array(K, "ImmobileModel.K", (size, size))
         D = as_float_array(D, "ImmobileModel.D", (size, size))
-        self.K = check_symmetric_psd(K, "K")
-        self.D = check_symmetric_psd(D, "D")
+        self.K = jnp.asarray(check_symmetric_psd(K, "K"))
+        self.D = jnp.asarray(check_symmetric_psd(D, "D"))
         if is_concrete(self.K):
             rank = _rank(self.K)
             if rank > 6 * (n - 1):
@@ -86,7 +88,7 @@ class ImmobileModel(AbstractElasticModel):
                     f"manipulators (a free system has a rigid-motion null space), "
                     f"got rank K = {rank}"
                 )
-        self.y0 = as_float_array(y0, "ImmobileModel.y0", (n, 6))
+        self.y0 = jnp.asarray(as_float_array(y0, "ImmobileModel.y0", (n, 6)))
         self.gravity = check_gravity(gravity)
 
     def potential(self, y: State) -> Scalar:

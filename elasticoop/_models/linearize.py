@@ -31,7 +31,7 @@ def linearize_mobile(model: MobileModel, y0) -> ImmobileModel:
     """
     if not isinstance(model, MobileModel):
         raise ValueError(f"model must be a MobileModel, got {type(model).__name__}")
-    y0 = as_float_array(y0, "y0", (model.n_bodies, 6))
+    y0 = jnp.asarray(as_float_array(y0, "y0", (model.n_bodies, 6)))
     n = 6 * model.n_bodies
     grad = jax.grad(model.potential)(y0)
     if is_concrete(grad):

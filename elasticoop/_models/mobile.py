@@ -67,6 +67,10 @@ class Connection(eqx.Module):
             rest_length,
         )
         self.rest_angles = as_float_array(rest_angles, f"{label}.rest_angles", (3,))
+        self.stiffness, self.damping, self.rest_length, self.rest_angles = (
+            jnp.asarray(x)
+            for x in (self.stiffness, self.damping, self.rest_length, self.rest_angles)
+        )
 
 
 def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
@@ -207,7 +211,7 @@ class MobileModel(AbstractElasticModel):
         """The same model with rest lengths and rest angles set so that `y` is
         unloaded ($\\rho_{ij0} = |r_i - r_j|$, $\\Delta\\mathcal{A}_{ij0} =
         \\mathcal{A}_i - \\mathcal{A}_j$)."""
-        y = as_float_array(y, "y", (self.n_bodies, 6))
+        y = jnp.asarray(as_float_array(y, "y", (self.n_bodies, 6)))
         yi, yj = self._ends(y)
         lengths = self.link_lengths(y)
         if is_concrete(lengths) and np.any(np.asarray(lengths) == 0):
