@@ -14,8 +14,7 @@ CONN = dict(stiffness=[100.0] * 6, damping=[1.0] * 6)
 
 
 def _K(n=2):
-    model = three_body_model() if n == 3 else None
-    del model
+    """A valid stiffness: one x-spring between bodies 0 and 1."""
     k = np.zeros((6 * n, 6 * n))
     k[0, 0] = k[6, 6] = 10.0
     k[0, 6] = k[6, 0] = -10.0
