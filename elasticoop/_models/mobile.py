@@ -51,25 +51,17 @@ class Connection(eqx.Module):
             )
         self.i, self.j = int(i), int(j)
         label = f"Connection({i}, {j})"
-        stiffness = as_float_array(stiffness, f"{label}.stiffness", (6,))
-        damping = as_float_array(damping, f"{label}.damping", (6,))
-        rest_length = as_float_array(rest_length, f"{label}.rest_length", ())
-        self.stiffness = require(
-            stiffness, stiffness >= 0, f"{label}.stiffness must be >= 0", stiffness
-        )
-        self.damping = require(
-            damping, damping >= 0, f"{label}.damping must be >= 0", damping
-        )
-        self.rest_length = require(
-            rest_length,
-            rest_length >= 0,
-            f"{label}.rest_length must be >= 0",
-            rest_length,
-        )
-        self.rest_angles = as_float_array(rest_angles, f"{label}.rest_angles", (3,))
-        self.stiffness, self.damping, self.rest_length, self.rest_angles = (
-            jnp.asarray(x)
-            for x in (self.stiffness, self.damping, self.rest_length, self.rest_angles)
+        for field, value, shape in (
+            ("stiffness", stiffness, (6,)),
+            ("damping", damping, (6,)),
+            ("rest_length", rest_length, ()),
+        ):
+            name = f"{label}.{field}"
+            value = as_float_array(value, name, shape)
+            value = require(value, value >= 0, f"{name} must be >= 0", value)
+            setattr(self, field, jnp.asarray(value))
+        self.rest_angles = jnp.asarray(
+            as_float_array(rest_angles, f"{label}.rest_angles", (3,))
         )
 
 
