@@ -9,6 +9,25 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from ._analysis import (  # noqa: E402
+    AbstractMotion as AbstractMotion,
+    Equilibrium as Equilibrium,
+    LinearModel as LinearModel,
+    LoadDistribution as LoadDistribution,
+    Modes as Modes,
+    PrescribedMotion as PrescribedMotion,
+    SplineMotion as SplineMotion,
+    StateSpace as StateSpace,
+    grasp_matrix as grasp_matrix,
+    grasp_wrenches as grasp_wrenches,
+    inverse_dynamics_series as inverse_dynamics_series,
+    linearize as linearize,
+    load_distribution as load_distribution,
+    modes as modes,
+    plot_mode_shapes as plot_mode_shapes,
+    static_equilibrium as static_equilibrium,
+    trajectory_load_distribution as trajectory_load_distribution,
+)
 from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
 from ._forces import (  # noqa: E402
     AbstractForce as AbstractForce,

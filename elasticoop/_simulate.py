@@ -7,6 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from ._analysis.constrained import constrained_accelerations
+from ._analysis.motion import PrescribedMotion
 from ._forces import (
     AbstractForce,
     SampledForce,
@@ -51,6 +53,7 @@ def simulate(
     throw: bool | None = None,
     gimbal_tol: float = GIMBAL_TOL,
     link_tol: float = LINK_TOL,
+    prescribed: PrescribedMotion | None = None,
 ) -> Trajectory:
     """Integrate $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$ from `ts[0]` to `ts[-1]`.
 
@@ -77,6 +80,10 @@ def simulate(
     - `link_tol`: the run stops when a link with rest length $\\rho_0 > 0$ shrinks to
       $|r_i - r_j| <$ `link_tol` $\\rho_0$ (`MobileModel`; a link with $\\rho_0 = 0$
       is smooth through $r_i = r_j$ and never stops a run).
+    - `prescribed`: a `PrescribedMotion`: the coordinates in its mask follow its
+      motion (their entries of `y_init`, `ydot_init` are taken from it) and only the
+      others are integrated; `Trajectory.reaction` then holds the generalized forces
+      that realise the prescribed motion, and `Trajectory.work` includes their work.
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces, and `jax.vmap`-able over any of them.
@@ -93,6 +100,16 @@ def simulate(
         raise ValueError(f"ts needs at least 2 times, got {ts.shape[0]}")
     ts = require(ts, (ts[1:] > ts[:-1]).all(), "ts must be strictly increasing", ts)
     y_init, ydot_init, ts = (jnp.asarray(x) for x in (y_init, ydot_init, ts))
+    if prescribed is not None:
+        if not isinstance(prescribed, PrescribedMotion):
+            raise ValueError(
+                "prescribed must be a PrescribedMotion, got "
+                f"{type(prescribed).__name__}"
+            )
+        prescribed.check(n, ts[0], ts[-1])
+        y_p, ydot_p, _ = prescribed.state(ts[0])
+        y_init = jnp.where(prescribed.mask, y_p, y_init)
+        ydot_init = jnp.where(prescribed.mask, ydot_p, ydot_init)
     force = as_force(forces)
     if force is not None:
         shape = jax.eval_shape(force, ts[0], y_init, ydot_init).shape
@@ -135,6 +152,7 @@ def simulate(
         diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
         float(gimbal_tol),
         float(link_tol),
+        prescribed,
     )
     if throw is False:
         return traj
@@ -152,15 +170,37 @@ def simulate(
     return traj
 
 
-def _vector_field(t, state, args):
-    model, force, _ = args
-    y, ydot, _, _ = state
+def _applied(model, force, t, y, ydot):
     if force is None:
-        applied = jnp.zeros_like(y)
-    else:
-        applied = pad_to_bodies(force(t, y, ydot), model.n_bodies)
-    yddot, damping = accelerations(model, y, ydot, applied)
-    return ydot, yddot, jnp.sum(applied * ydot), jnp.sum(damping * ydot)
+        return jnp.zeros_like(y)
+    return pad_to_bodies(force(t, y, ydot), model.n_bodies)
+
+
+def _vector_field(t, state, args):
+    model, force, _, prescribed = args
+    y, ydot, _, _ = state
+    if prescribed is None:
+        applied = _applied(model, force, t, y, ydot)
+        yddot, damping = accelerations(model, y, ydot, applied)
+        return ydot, yddot, jnp.sum(applied * ydot), jnp.sum(damping * ydot)
+    y, ydot, yddot, damping, reaction, applied = _driven(
+        model, force, prescribed, t, y, ydot
+    )
+    power = jnp.sum((applied + reaction) * ydot)
+    return ydot, yddot, power, jnp.sum(damping * ydot)
+
+
+def _driven(model, force, prescribed, t, y, ydot):
+    """The state with the prescribed entries substituted, and its dynamics."""
+    mask = prescribed.mask
+    y_p, ydot_p, yddot_p = prescribed.state(t)
+    y = jnp.where(mask, y_p, y)
+    ydot = jnp.where(mask, ydot_p, ydot)
+    applied = _applied(model, force, t, y, ydot)
+    yddot, damping, reaction = constrained_accelerations(
+        model, y, ydot, applied, mask, yddot_p
+    )
+    return y, ydot, yddot, damping, reaction, applied
 
 
 def _regularity(model, y):
@@ -188,6 +228,7 @@ def _solve(
     adjoint,
     gimbal_tol,
     link_tol,
+    prescribed,
 ) -> Trajectory:
     # A start at the singularity (only possible when traced) is flagged, and a
     # regular orientation is integrated instead so the batch stays finite.
@@ -224,7 +265,7 @@ def _solve(
         t1=ts[-1],
         dt0=dt0,
         y0=(y_start, ydot_init, zero, zero),
-        args=(model, force, side),
+        args=(model, force, side, prescribed),
         saveat=diffrax.SaveAt(ts=ts, t1=True),
         stepsize_controller=controller,
         adjoint=adjoint,
@@ -233,6 +274,16 @@ def _solve(
         throw=False,
     )
     y_all, ydot_all, work, dissipated = sol.ys
+    reaction = None
+    if prescribed is not None:
+        # Report the prescribed entries exactly, and the reactions at the outputs.
+        def exact(t, y, ydot):
+            y, ydot, _, _, reaction, _ = _driven(model, force, prescribed, t, y, ydot)
+            return y, ydot, reaction
+
+        # Unused output slots hold t = inf; evaluate them at ts[0] (masked below).
+        t_out = jnp.where(jnp.isfinite(sol.ts), sol.ts, ts[0])
+        y_all, ydot_all, reaction = jax.vmap(exact)(t_out, y_all, ydot_all)
     # With SaveAt(ts, t1) the final state follows the last saved time <= t_end
     # (diffrax compacts the outputs), and the unused entries are inf.
     last = jnp.argmax(jnp.where(jnp.isfinite(sol.ts), sol.ts, -jnp.inf))
@@ -291,4 +342,5 @@ def _solve(
         status=status.astype(jnp.int32),
         event_time=event_time,
         event_index=index.astype(jnp.int32),
+        reaction=None if reaction is None else mask(reaction),
     )

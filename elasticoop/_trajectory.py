@@ -38,6 +38,9 @@ class Trajectory(eqx.Module):
     - `event_time`: the time the run stopped early ($t_1$ when it did not).
     - `event_index`: the body (gimbal lock) or connection (collapsed link) at fault,
       -1 otherwise.
+    - `reaction`: with prescribed coordinates, the generalized forces that realise
+      the prescribed motion, shape `(times, bodies, 6)` (zero on the free
+      coordinates); `None` otherwise.
 
     Under `jax.vmap` every field gains a leading batch axis.
     """
@@ -51,6 +54,14 @@ class Trajectory(eqx.Module):
     status: jax.Array
     event_time: jax.Array
     event_index: jax.Array
+    reaction: StateSeries | None = None
+
+    def to_xarray(self, body_names=None):
+        """The trajectory as an `xarray.Dataset` (dims `time`, `body`, `coordinate`),
+        with units and the model parameters as attributes."""
+        from ._export import trajectory_to_xarray
+
+        return trajectory_to_xarray(self, body_names=body_names)
 
     @property
     def succeeded(self) -> jax.Array:

@@ -1,0 +1,25 @@
+from .constrained import constrained_accelerations as constrained_accelerations
+from .equilibrium import (
+    Equilibrium as Equilibrium,
+    static_equilibrium as static_equilibrium,
+)
+from .inverse import inverse_dynamics_series as inverse_dynamics_series
+from .linear import (
+    LinearModel as LinearModel,
+    StateSpace as StateSpace,
+    linearize as linearize,
+)
+from .load_distribution import (
+    LoadDistribution as LoadDistribution,
+    grasp_matrix as grasp_matrix,
+    grasp_wrenches as grasp_wrenches,
+    load_distribution as load_distribution,
+    trajectory_load_distribution as trajectory_load_distribution,
+)
+from .modes import Modes as Modes, modes as modes
+from .motion import (
+    AbstractMotion as AbstractMotion,
+    PrescribedMotion as PrescribedMotion,
+    SplineMotion as SplineMotion,
+)
+from .plot_modes import plot_mode_shapes as plot_mode_shapes

@@ -1,0 +1,170 @@
+"""Static equilibrium with some coordinates prescribed."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .._custom_types import State
+from .._lagrange import elastic_forces
+from .._models import AbstractElasticModel
+from .._models.base import RANK_RTOL
+from .._validation import as_float_array
+from ._common import as_mask, constant_forces
+
+
+class Equilibrium(eqx.Module):
+    """A static equilibrium (see `static_equilibrium`).
+
+    **Fields:**
+
+    - `y`: the equilibrium configuration, `(bodies, 6)`.
+    - `reaction`: generalized forces on the prescribed coordinates that hold them,
+      $Q_p = [\\partial\\Pi/\\partial Y - G - F]_p$, `(bodies, 6)` (zero on the free
+      coordinates).
+    - `residual`: largest $|\\partial\\Pi/\\partial Y - G - F|$ over the free
+      coordinates [N, N m].
+    - `stiffness`: $K_{ff}$, the stiffness restricted to the free coordinates there.
+    - `mask`: the prescribed coordinates.
+    - `steps`: iterations of the solver.
+    """
+
+    y: State
+    reaction: State
+    residual: jax.Array
+    stiffness: jax.Array
+    mask: np.ndarray
+    steps: int
+
+    @property
+    def stable(self) -> bool:
+        """True when $K_{ff}$ is positive definite (an isolated minimum of the
+        potential energy)."""
+        return bool(np.linalg.eigvalsh(np.asarray(self.stiffness)).min() > 0)
+
+
+def _restricted_stiffness(model, y, free):
+    K = model.stiffness_matrix(y)
+    return K[np.ix_(free, free)]
+
+
+def _missing_constraints(k_ff) -> int:
+    eig = np.abs(np.linalg.eigvalsh(np.asarray(k_ff)))
+    if eig.size == 0:
+        return 0
+    top = eig.max()
+    rank = 0 if top == 0 else int(np.sum(eig > RANK_RTOL * top))
+    return eig.size - rank
+
+
+def static_equilibrium(
+    model: AbstractElasticModel,
+    y_guess,
+    prescribed=None,
+    forces=None,
+    *,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    max_steps: int = 256,
+) -> Equilibrium:
+    """Solve $\\partial\\Pi/\\partial Y = G + F$ for the free coordinates.
+
+    The prescribed coordinates keep their values from `y_guess`. The free ones are
+    found in two stages with optimistix: BFGS with a line search descends the
+    potential energy $V = \\Pi + \\sum_i m_i g z_i - F\\cdot Y$ (whose gradient is
+    the force imbalance, so a start where the stiffness is singular still moves),
+    then Levenberg-Marquardt (a trust-region Newton method) drives the imbalance
+    $r = [\\partial\\Pi/\\partial Y - G - F]_f$ to zero. The result is a minimum
+    of $V$: a stable equilibrium.
+
+    The solution is unique only if the stiffness restricted to the free coordinates,
+    $K_{ff}$, is non-singular there; in statics only rank K of the $6m + 6$
+    equations are independent, so at least $6m + 6 - \\operatorname{rank} K$
+    coordinates must be prescribed. Otherwise a `ValueError` says how many
+    constraints are missing.
+
+    **Arguments:**
+
+    - `model`: an `ImmobileModel` or `MobileModel`.
+    - `y_guess`: starting configuration, `(bodies, 6)`; holds the prescribed values.
+    - `prescribed`: bool `(bodies, 6)`, true for a prescribed coordinate.
+    - `forces`: constant generalized forces, `(m, 6)` on the contact bodies or
+      `(m + 1, 6)`.
+    - `rtol`, `atol`: tolerances of the solver.
+    - `max_steps`: the most iterations.
+
+    **Returns:** an `Equilibrium`.
+    """
+    n = model.n_bodies
+    y_guess = jnp.asarray(as_float_array(y_guess, "y_guess", (n, 6)))
+    mask = as_mask(prescribed, n)
+    F = constant_forces(forces, n)
+    free = np.flatnonzero(~mask.reshape(-1))
+    need = model.n_prescribed(y_guess)
+    if free.size == 0:
+        raise ValueError("prescribed fixes every coordinate: nothing to solve for")
+
+    def full(y_free):
+        return y_guess.reshape(-1).at[free].set(y_free).reshape(n, 6)
+
+    def imbalance(y_free, args):
+        y = full(y_free)
+        r = elastic_forces(model, y) - model.gravity_forces() - F
+        return r.reshape(-1)[free]
+
+    def energy(y_free, args):
+        y = full(y_free)
+        return model.potential(y) + model.gravity_potential(y) - jnp.sum(F * y)
+
+    # Descend the potential energy first: its gradient is the force imbalance, so
+    # a start where the stiffness is singular (a link unloaded and stiff only
+    # along itself) still moves towards the loaded, stable equilibrium...
+    descent = optx.minimise(
+        energy,
+        optx.BFGS(rtol=rtol, atol=atol),
+        y_guess.reshape(-1)[free],
+        max_steps=max_steps,
+        throw=False,
+    )
+    # ...then polish the force balance with a trust-region Newton method.
+    solution = optx.least_squares(
+        imbalance,
+        optx.LevenbergMarquardt(rtol=rtol, atol=atol),
+        descent.value,
+        max_steps=max_steps,
+        throw=False,
+    )
+    y = full(solution.value)
+    k_ff = _restricted_stiffness(model, y, free)
+    missing = _missing_constraints(k_ff)
+    residual = float(jnp.max(jnp.abs(imbalance(solution.value, None))))
+    converged = solution.result == optx.RESULTS.successful
+    if missing > 0 or not bool(converged):
+        at_guess = _missing_constraints(_restricted_stiffness(model, y_guess, free))
+        missing = max(missing, at_guess)
+        if missing > 0:
+            raise ValueError(
+                f"the static equilibrium is not unique: {int(mask.sum())} "
+                f"coordinates are prescribed, but the stiffness restricted to the "
+                f"{free.size} free ones is singular, so {missing} constraint"
+                f"{'s are' if missing > 1 else ' is'} missing (6m + 6 - rank K = "
+                f"{need} coordinates must be prescribed, and they must fix the "
+                f"stiffness' null directions); prescribe {missing} more "
+                f"coordinate{'s' if missing > 1 else ''}"
+            )
+        raise ValueError(
+            f"the static equilibrium solver did not converge in {max_steps} steps "
+            f"(largest force imbalance {residual:.3e}); start closer to the "
+            f"equilibrium or raise max_steps"
+        )
+    total = elastic_forces(model, y) - model.gravity_forces() - F
+    reaction = jnp.where(mask, total, 0.0)
+    return Equilibrium(
+        y=y,
+        reaction=reaction,
+        residual=jnp.asarray(residual),
+        stiffness=k_ff,
+        mask=mask,
+        steps=int(descent.stats["num_steps"]) + int(solution.stats["num_steps"]),
+    )
