@@ -45,8 +45,13 @@ class Equilibrium(eqx.Module):
 
 
 def _restricted_stiffness(model, y, free):
-    K = model.stiffness_matrix(y)
-    return K[np.ix_(free, free)]
+    K = _stiffness(model, y)
+    return np.asarray(K)[np.ix_(free, free)]
+
+
+@eqx.filter_jit
+def _stiffness(model, y):
+    return model.stiffness_matrix(y)
 
 
 def _missing_constraints(k_ff) -> int:
@@ -105,41 +110,11 @@ def static_equilibrium(
     if free.size == 0:
         raise ValueError("prescribed fixes every coordinate: nothing to solve for")
 
-    def full(y_free):
-        return y_guess.reshape(-1).at[free].set(y_free).reshape(n, 6)
-
-    def imbalance(y_free, args):
-        y = full(y_free)
-        r = elastic_forces(model, y) - model.gravity_forces() - F
-        return r.reshape(-1)[free]
-
-    def energy(y_free, args):
-        y = full(y_free)
-        return model.potential(y) + model.gravity_potential(y) - jnp.sum(F * y)
-
-    # Descend the potential energy first: its gradient is the force imbalance, so
-    # a start where the stiffness is singular (a link unloaded and stiff only
-    # along itself) still moves towards the loaded, stable equilibrium...
-    descent = optx.minimise(
-        energy,
-        optx.BFGS(rtol=rtol, atol=atol),
-        y_guess.reshape(-1)[free],
-        max_steps=max_steps,
-        throw=False,
-    )
-    # ...then polish the force balance with a trust-region Newton method.
-    solution = optx.least_squares(
-        imbalance,
-        optx.LevenbergMarquardt(rtol=rtol, atol=atol),
-        descent.value,
-        max_steps=max_steps,
-        throw=False,
-    )
-    y = full(solution.value)
-    k_ff = _restricted_stiffness(model, y, free)
+    found = _solve(model, y_guess, jnp.asarray(free), F, rtol, atol, max_steps)
+    y, residual, converged, steps, stiffness, total = found
+    k_ff = np.asarray(stiffness)[np.ix_(free, free)]
     missing = _missing_constraints(k_ff)
-    residual = float(jnp.max(jnp.abs(imbalance(solution.value, None))))
-    converged = solution.result == optx.RESULTS.successful
+    residual = float(residual)
     if missing > 0 or not bool(converged):
         at_guess = _missing_constraints(_restricted_stiffness(model, y_guess, free))
         missing = max(missing, at_guess)
@@ -158,13 +133,61 @@ def static_equilibrium(
             f"(largest force imbalance {residual:.3e}); start closer to the "
             f"equilibrium or raise max_steps"
         )
-    total = elastic_forces(model, y) - model.gravity_forces() - F
     reaction = jnp.where(mask, total, 0.0)
     return Equilibrium(
         y=y,
         reaction=reaction,
         residual=jnp.asarray(residual),
-        stiffness=k_ff,
+        stiffness=jnp.asarray(k_ff),
         mask=mask,
-        steps=int(descent.stats["num_steps"]) + int(solution.stats["num_steps"]),
+        steps=int(steps),
     )
+
+
+def _full(y_free, args):
+    model, y_guess, free, F = args
+    return y_guess.reshape(-1).at[free].set(y_free).reshape(model.n_bodies, 6)
+
+
+def _imbalance(y_free, args):
+    model, _, free, F = args
+    y = _full(y_free, args)
+    r = elastic_forces(model, y) - model.gravity_forces() - F
+    return r.reshape(-1)[free]
+
+
+def _energy(y_free, args):
+    model, _, _, F = args
+    y = _full(y_free, args)
+    return model.potential(y) + model.gravity_potential(y) - jnp.sum(F * y)
+
+
+@eqx.filter_jit
+def _solve(model, y_guess, free, F, rtol, atol, max_steps):
+    args = (model, y_guess, free, F)
+    # Descend the potential energy first: its gradient is the force imbalance, so
+    # a start where the stiffness is singular (a link unloaded and stiff only
+    # along itself) still moves towards the loaded, stable equilibrium...
+    descent = optx.minimise(
+        _energy,
+        optx.BFGS(rtol=rtol, atol=atol),
+        y_guess.reshape(-1)[free],
+        args=args,
+        max_steps=max_steps,
+        throw=False,
+    )
+    # ...then polish the force balance with a trust-region Newton method.
+    solution = optx.least_squares(
+        _imbalance,
+        optx.LevenbergMarquardt(rtol=rtol, atol=atol),
+        descent.value,
+        args=args,
+        max_steps=max_steps,
+        throw=False,
+    )
+    y = _full(solution.value, args)
+    residual = jnp.max(jnp.abs(_imbalance(solution.value, args)))
+    converged = solution.result == optx.RESULTS.successful
+    steps = descent.stats["num_steps"] + solution.stats["num_steps"]
+    total = elastic_forces(model, y) - model.gravity_forces() - F
+    return y, residual, converged, steps, model.stiffness_matrix(y), total
