@@ -29,6 +29,8 @@ from ._analysis import (  # noqa: E402
     trajectory_load_distribution as trajectory_load_distribution,
 )
 from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
+from ._config import ScenarioError as ScenarioError, load_scenario as load_scenario  # noqa: E402, I001
+from ._export import trajectory_to_xarray as trajectory_to_xarray  # noqa: E402
 from ._forces import (  # noqa: E402
     AbstractForce as AbstractForce,
     ConstantForce as ConstantForce,
@@ -54,11 +56,23 @@ from ._models import (  # noqa: E402
     deflection as deflection,
     linearize_mobile as linearize_mobile,
 )
+from ._plotting import (  # noqa: E402
+    plot_coordinates as plot_coordinates,
+    plot_elastic_wrench as plot_elastic_wrench,
+    plot_energy as plot_energy,
+    plot_snapshots as plot_snapshots,
+    save_animation as save_animation,
+)
 from ._rotations import (  # noqa: E402
     RPY as RPY,
     ZXZ as ZXZ,
     AbstractRotation as AbstractRotation,
     get_rotation as get_rotation,
+)
+from ._scenario import (  # noqa: E402
+    PrescribedSpec as PrescribedSpec,
+    Scenario as Scenario,
+    default_scenario as default_scenario,
 )
 from ._simulate import (  # noqa: E402
     GIMBAL_TOL as GIMBAL_TOL,

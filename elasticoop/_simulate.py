@@ -54,6 +54,7 @@ def simulate(
     gimbal_tol: float = GIMBAL_TOL,
     link_tol: float = LINK_TOL,
     prescribed: PrescribedMotion | None = None,
+    progress_meter: diffrax.AbstractProgressMeter | None = None,
 ) -> Trajectory:
     """Integrate $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$ from `ts[0]` to `ts[-1]`.
 
@@ -84,6 +85,8 @@ def simulate(
       motion (their entries of `y_init`, `ydot_init` are taken from it) and only the
       others are integrated; `Trajectory.reaction` then holds the generalized forces
       that realise the prescribed motion, and `Trajectory.work` includes their work.
+    - `progress_meter`: a diffrax progress meter, e.g.
+      `diffrax.TqdmProgressMeter()` for a progress bar on a long run (default none).
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces, and `jax.vmap`-able over any of them.
@@ -153,6 +156,7 @@ def simulate(
         float(gimbal_tol),
         float(link_tol),
         prescribed,
+        diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
     )
     if throw is False:
         return traj
@@ -229,6 +233,7 @@ def _solve(
     gimbal_tol,
     link_tol,
     prescribed,
+    progress_meter,
 ) -> Trajectory:
     # A start at the singularity (only possible when traced) is flagged, and a
     # regular orientation is integrated instead so the batch stays finite.
@@ -272,6 +277,7 @@ def _solve(
         event=event,
         max_steps=max_steps,
         throw=False,
+        progress_meter=progress_meter,
     )
     y_all, ydot_all, work, dissipated = sol.ys
     reaction = None

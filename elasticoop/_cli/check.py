@@ -1,0 +1,70 @@
+"""`elasticoop check SCENARIO...`: validate scenario files without simulating."""
+
+import sys
+
+import numpy as np
+
+from .._config import ScenarioError
+from ._common import EXIT_OK, EXIT_USAGE, common_options, load, say
+
+NAME = "check"
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        NAME,
+        parents=[common_options()],
+        help="validate scenario files (no simulation)",
+        description=(
+            "Validate one or more TOML scenario files: every table and key, the "
+            "bodies named by connections, initial states, forces and prescribed "
+            "coordinates, and the data files they refer to. All problems of a "
+            "file are listed at once. Exit code 0 when all files are valid, 2 "
+            "otherwise."
+        ),
+    )
+    parser.add_argument(
+        "scenarios", metavar="SCENARIO", nargs="+", help="TOML scenario file(s)"
+    )
+    parser.set_defaults(func=execute)
+
+
+def describe(scenario) -> list[str]:
+    """A few lines describing a loaded scenario."""
+    model = scenario.model
+    kind = type(model).__name__
+    links = (
+        f", {len(scenario.connection_names)} connections"
+        if scenario.connection_names
+        else ""
+    )
+    ts = np.asarray(scenario.ts)
+    forces = type(scenario.forces).__name__ if scenario.forces is not None else "none"
+    lines = [
+        f"  model: {kind} ({model.convention}), {model.n_bodies} bodies "
+        f"({', '.join(scenario.names)}){links}, gravity {float(model.gravity)} m/s^2",
+        f"  time: {ts[0]:g} to {ts[-1]:g} s, {ts.size} output samples; solver "
+        f"{scenario.solver} (rtol {scenario.rtol:g}, atol {scenario.atol:g})",
+        f"  forces: {forces}",
+    ]
+    if scenario.prescribed is not None:
+        spec = scenario.prescribed
+        motion = "hold" if spec.hold else f"{spec.ts.size} CSV samples"
+        lines.append(f"  prescribed: {int(spec.mask.sum())} coordinates ({motion})")
+    return lines
+
+
+def execute(args) -> int:
+    errors = []
+    for path in args.scenarios:
+        try:
+            scenario = load(path)
+        except ScenarioError as err:
+            errors.append(err)
+            continue
+        say(args, f"{path}: valid scenario '{scenario.name}'", *describe(scenario))
+    if len(errors) == 1 and len(args.scenarios) == 1:
+        raise errors[0]
+    for err in errors:
+        print(f"elasticoop check: error: {err}", file=sys.stderr)
+    return EXIT_USAGE if errors else EXIT_OK

@@ -1,0 +1,48 @@
+"""`elasticoop demo` (also `python -m elasticoop`): the built-in scenario."""
+
+from ._common import EXIT_OK, common_options, say, simulate_scenario, write_results
+
+NAME = "demo"
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        NAME,
+        parents=[common_options()],
+        help="run the built-in scenario and print a summary (the default)",
+        description=(
+            "Simulate the built-in scenario (two manipulators lift a beam through "
+            "elastic grasps; the packaged example 'beam_lift') and print the "
+            "object's displacement, the peak grasp forces and the energy balance. "
+            "With -o, also write the results and plots as 'run' does."
+        ),
+    )
+    parser.add_argument("--rtol", type=float, default=None, help="relative tolerance")
+    parser.add_argument("--atol", type=float, default=None, help="absolute tolerance")
+    parser.add_argument(
+        "-o", "--output", metavar="OUTDIR", help="also write results and plots here"
+    )
+    parser.set_defaults(func=execute)
+
+
+def execute(args) -> int:
+    import dataclasses
+
+    from .._export import scenario_summary
+    from .._main import format_summary
+    from .._scenario import default_scenario
+
+    scenario = default_scenario()
+    tolerances = {k: getattr(args, k) for k in ("rtol", "atol")}
+    scenario = dataclasses.replace(
+        scenario, **{k: v for k, v in tolerances.items() if v is not None}
+    )
+    traj, wall, error = simulate_scenario(scenario, args)
+    if args.output:
+        paths = write_results(scenario, traj, wall, args.output, args)
+    if error is not None:
+        raise error
+    say(args, format_summary(scenario_summary(scenario, traj, wall)))
+    if args.output:
+        say(args, "wrote " + ", ".join(str(p) for p in paths))
+    return EXIT_OK

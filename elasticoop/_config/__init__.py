@@ -1,0 +1,4 @@
+"""Scenario files: the TOML schema, its validation and loading."""
+
+from .build import build_scenario as build_scenario, load_scenario as load_scenario
+from .problems import Problem as Problem, ScenarioError as ScenarioError

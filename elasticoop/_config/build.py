@@ -1,0 +1,508 @@
+"""Scenario file -> `Scenario`: parse TOML, validate every table, check the tables
+against each other, and build the model, forces and prescribed coordinates."""
+
+import math
+import pathlib
+import tomllib
+
+import jax.numpy as jnp
+import numpy as np
+from pydantic import TypeAdapter, ValidationError
+
+from .._body import RigidBody
+from .._forces import ConstantForce, SampledForce
+from .._models import Connection, ImmobileModel, MobileModel
+from .._models.base import _rank
+from .._models.immobile import check_symmetric_psd
+from .._rotations import get_rotation
+from .._scenario import PoseTracking, PrescribedSpec, Scenario
+from .._simulate import GIMBAL_TOL
+from . import data_files, schema
+from .problems import Problem, Problems, ScenarioError, unknown_key_message
+
+# Generalized force components in a forces CSV: world force [N], then the
+# generalized torques conjugate to the three Euler angles [N m].
+FORCE_COMPONENTS = ("fx", "fy", "fz", "q1", "q2", "q3")
+
+_ADAPTERS = {
+    name: TypeAdapter(
+        {"table": cls, "array": list[cls], "by_body": dict[schema.Name, cls]}[shape]
+    )
+    for name, (cls, shape) in schema.SECTIONS.items()
+}
+
+
+def load_scenario(path) -> Scenario:
+    """Read and validate a TOML scenario file.
+
+    Every problem found (unknown key, wrong type, missing body, bad unit, bad data
+    file, ...) is collected, and one `ScenarioError` (a `ValueError`) lists them
+    all, each with its table and key. Data files are looked up relative to the
+    scenario file's folder.
+
+    **Returns:** a `Scenario`.
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise ScenarioError(str(path), [Problem("(file)", "", "no such scenario file")])
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ScenarioError(
+            str(path), [Problem("(file)", "", f"not valid TOML: {err}")]
+        ) from None
+    return build_scenario(raw, source=str(path), base_dir=path.parent)
+
+
+def build_scenario(raw: dict, source: str = "<scenario>", base_dir=".") -> Scenario:
+    """Validate the parsed TOML `raw` (a dict) and build its `Scenario`."""
+    return _Builder(raw, source, pathlib.Path(base_dir)).build()
+
+
+def _array_label(section: str, k: int, entry) -> str:
+    name = entry.get("name") if isinstance(entry, dict) else None
+    return f"[[{section}]] #{k + 1}" + (f" ({name})" if isinstance(name, str) else "")
+
+
+class _Builder:
+    def __init__(self, raw, source, base_dir):
+        self.raw = raw
+        self.source = source
+        self.base_dir = base_dir
+        self.problems = Problems(source)
+        self.s = {}  # validated sections
+
+    def add(self, table, key, message):
+        self.problems.add(table, key, message)
+
+    # -- stage 1: every table on its own ------------------------------------------
+    def validate_tables(self):
+        allowed = [*schema.SECTIONS, *schema.TOP_LEVEL_KEYS]
+        for key in self.raw:
+            if key not in allowed:
+                self.add("(top level)", key, unknown_key_message(key, allowed))
+        top = {k: self.raw[k] for k in schema.TOP_LEVEL_KEYS if k in self.raw}
+        try:
+            self.info = schema.ScenarioInfo.model_validate(top)
+        except ValidationError as err:
+            self.info = None
+            for e in err.errors():
+                self.add("(top level)", ".".join(map(str, e["loc"])), e["msg"])
+        for name, (_, shape) in schema.SECTIONS.items():
+            if name not in self.raw:
+                if name in schema.REQUIRED:
+                    table = f"[[{name}]]" if shape == "array" else f"[{name}]"
+                    self.add(table, "", "missing table")
+                continue
+            raw = self.raw[name]
+            if shape == "array" and isinstance(raw, list):
+                # entry by entry, so that valid entries still take part in the
+                # checks across tables (None marks an invalid entry)
+                self.s[name] = [
+                    self._validate_entry(name, raw, k) for k in range(len(raw))
+                ]
+                continue
+            try:
+                self.s[name] = _ADAPTERS[name].validate_python(raw)
+            except ValidationError as err:
+                self.problems.add_validation_error(name, shape, raw, err)
+
+    def _validate_entry(self, name, raw, k):
+        cls = schema.SECTIONS[name][0]
+        try:
+            return cls.model_validate(raw[k])
+        except ValidationError as err:
+            self.problems.add_validation_error(name, "array", raw, err, prefix=(k,))
+            return None
+
+    # -- stage 2: tables against each other --------------------------------------
+    def check_bodies(self):
+        bodies = self.s.get("bodies")
+        if bodies is None:
+            return
+        if not bodies:
+            self.add("[[bodies]]", "", "needs at least one body (the object)")
+        if any(b is None for b in bodies):
+            # names of invalid entries are still known when they are strings
+            raw = self.raw["bodies"]
+            names = [e.get("name") if isinstance(e, dict) else None for e in raw]
+            self.names = [
+                n if isinstance(n, str) else f"#{k + 1}" for k, n in enumerate(names)
+            ]
+            self.index = {name: k for k, name in enumerate(self.names)}
+            self.bodies_valid = False
+            return
+        self.bodies_valid = True
+        seen = {}
+        for k, body in enumerate(bodies):
+            if body.name in seen:
+                self.add(
+                    _array_label("bodies", k, self.raw["bodies"][k]),
+                    "name",
+                    f"body name '{body.name}' is used twice (also #{seen[body.name]})",
+                )
+            seen.setdefault(body.name, k + 1)
+        self.names = [b.name for b in bodies]
+        self.index = {name: k for k, name in enumerate(self.names)}
+
+    def body_problem(self, name) -> str:
+        return f"no body named '{name}' (bodies: {', '.join(self.names)})"
+
+    def poses(self, section, rates):
+        """`(bodies, 6)` poses (and rates) from `[initial.*]` or `[unloaded.*]`."""
+        tables = self.s.get(section)
+        if tables is None or self.index is None:
+            return None
+        y, ydot = np.zeros((len(self.names), 6)), np.zeros((len(self.names), 6))
+        for name, pose in tables.items():
+            if name not in self.index:
+                self.add(f"[{section}.{name}]", "", self.body_problem(name))
+                continue
+            k = self.index[name]
+            y[k] = [*pose.position, *pose.angles.to_radians()]
+            if rates:
+                ydot[k, :3] = pose.velocity
+                if pose.angle_rates is not None:
+                    ydot[k, 3:] = pose.angle_rates.to_radians()
+            reg = abs(float(self.rotation.regularity(jnp.asarray(y[k, 3:]))))
+            if reg < GIMBAL_TOL:
+                other = "rpy" if self.rotation.name == "zxz" else "zxz"
+                self.add(
+                    f"[{section}.{name}]",
+                    "angles",
+                    f"body '{name}' is at gimbal lock of the "
+                    f"{self.rotation.name.upper()} angles "
+                    f"({self.rotation.singularity_name} = {reg:.3g} < {GIMBAL_TOL}),"
+                    f" where the mass matrix is singular; choose other angles or "
+                    f"convention = '{other}' in [model]",
+                )
+        missing = [n for n in self.names if n not in tables]
+        for name in missing:
+            self.add(
+                f"[{section}.{name}]", "", f"missing table: body '{name}' needs one"
+            )
+        return (y, ydot) if rates else y
+
+    def check_time(self):
+        time = self.s.get("time")
+        if time is None:
+            return None
+        if not time.stop > time.start:
+            self.add(
+                "[time]",
+                "stop",
+                f"empty time span: stop ({time.stop}) must be greater than start "
+                f"({time.start})",
+            )
+            return None
+        return np.linspace(time.start, time.stop, time.samples)
+
+    def matrix(self, key, value):
+        if isinstance(value, str):
+            try:
+                return data_files.read_matrix(self.base_dir, value)
+            except ValueError as err:
+                self.add("[immobile]", key, str(err))
+                return None
+        rows = {len(r) for r in value}
+        if len(rows) > 1:
+            self.add("[immobile]", key, "rows have different lengths")
+            return None
+        return np.asarray(value, dtype=np.float64).reshape(len(value), -1)
+
+    def immobile_matrices(self):
+        table = self.s.get("immobile")
+        if table is None or self.index is None:
+            return None
+        n = len(self.names)
+        size = 6 * n
+        out = {}
+        for key in ("K", "D"):
+            mat = self.matrix(key, getattr(table, key))
+            if mat is None:
+                continue
+            if mat.shape != (size, size):
+                self.add(
+                    "[immobile]",
+                    key,
+                    f"must be 6(m+1) x 6(m+1) = {size} x {size} for {n} bodies, got "
+                    f"{mat.shape[0]} x {mat.shape[1]}",
+                )
+                continue
+            try:
+                check_symmetric_psd(mat, key)
+            except ValueError as err:
+                self.add("[immobile]", key, str(err))
+                continue
+            if key == "K" and _rank(mat) > 6 * (n - 1):
+                self.add(
+                    "[immobile]",
+                    key,
+                    f"rank K = {_rank(mat)} exceeds 6m = {6 * (n - 1)} (a free "
+                    "system keeps a rigid-motion null space)",
+                )
+                continue
+            out[key] = mat
+        return out
+
+    def connections(self, unloaded):
+        conns = self.s.get("connections", [])
+        if self.index is None:
+            return None
+        built, labels = [], []
+        for k, c in enumerate(conns):
+            table = _array_label("connections", k, self.raw["connections"][k])
+            if c is None:
+                raw_bodies = self.raw["connections"][k].get("bodies")
+                if isinstance(raw_bodies, list):
+                    for b in raw_bodies:
+                        if isinstance(b, str) and b not in self.index:
+                            self.add(table, "bodies", self.body_problem(b))
+                continue
+            unknown = [b for b in c.bodies if b not in self.index]
+            for b in unknown:
+                self.add(table, "bodies", self.body_problem(b))
+            if unknown:
+                continue
+            if c.bodies[0] == c.bodies[1]:
+                self.add(table, "bodies", f"joins body '{c.bodies[0]}' to itself")
+                continue
+            i, j = (self.index[b] for b in c.bodies)
+            label = c.name or f"{c.bodies[0]}-{c.bodies[1]}"
+            if label in labels:
+                self.add(table, "name", f"connection name '{label}' is used twice")
+            labels.append(label)
+            if unloaded is None:
+                continue
+            rest_length = (
+                float(np.linalg.norm(unloaded[i, :3] - unloaded[j, :3]))
+                if c.rest_length is None
+                else c.rest_length
+            )
+            rest_angles = (
+                unloaded[i, 3:] - unloaded[j, 3:]
+                if c.rest_angles is None
+                else np.asarray(c.rest_angles.to_radians())
+            )
+            built.append(
+                Connection(i, j, c.stiffness, c.damping, rest_length, rest_angles)
+            )
+        return built, tuple(labels)
+
+    def series_columns(self, key, name, table, allowed, what, columns_of):
+        """Read a CSV; check its '<body>.<column>' names against `allowed(body)`;
+        returns `(times, {(body index, column index in columns_of): values})`."""
+        try:
+            times, columns = data_files.read_series(self.base_dir, name)
+        except ValueError as err:
+            self.add(table, key, str(err))
+            return None
+        parsed, ok = {}, True
+        for column, values in columns.items():
+            body, _, part = column.partition(".")
+            if body not in self.index:
+                self.add(
+                    table,
+                    key,
+                    f"file '{name}', column '{column}': " + self.body_problem(body),
+                )
+                ok = False
+            elif part not in allowed(body):
+                self.add(
+                    table,
+                    key,
+                    f"file '{name}', column '{column}': '{part}' is not {what} "
+                    f"(expected '<body>.<name>' with name one of "
+                    f"{', '.join(allowed(body)) or 'none'})",
+                )
+                ok = False
+            else:
+                parsed[(self.index[body], columns_of.index(part))] = values
+        if self.ts is not None and (times[0] > self.ts[0] or times[-1] < self.ts[-1]):
+            self.add(
+                table,
+                key,
+                f"file '{name}' covers t = {times[0]}..{times[-1]} s but [time] spans "
+                f"{self.ts[0]}..{self.ts[-1]} s",
+            )
+            ok = False
+        return (times, parsed) if ok else None
+
+    def forces(self):
+        table = self.s.get("forces")
+        if table is None or self.index is None:
+            return None
+        n, m = len(self.names), len(self.names) - 1
+        if table.constant is not None:
+            rows = np.zeros((n, 6))
+            for name, value in table.constant.items():
+                if name not in self.index:
+                    self.add("[forces.constant]", name, self.body_problem(name))
+                    continue
+                rows[self.index[name]] = value
+            on_object = self.names[0] in table.constant
+            return ConstantForce(rows if on_object else rows[1:])
+        if table.samples is not None:
+            series = self.series_columns(
+                "samples",
+                table.samples,
+                "[forces]",
+                lambda body: FORCE_COMPONENTS,
+                "a force component",
+                FORCE_COMPONENTS,
+            )
+            if series is None:
+                return None
+            times, parsed = series
+            F = np.zeros((len(times), n, 6))
+            for (k, c), values in parsed.items():
+                F[:, k, c] = values
+            on_object = any(k == 0 for k, _ in parsed)
+            return SampledForce(times, F if on_object else F[:, 1:])
+        pose = table.pose_tracking
+        if m < 1:
+            self.add("[forces.pose_tracking]", "", "needs at least one contact body")
+            return None
+        if self.y_init is None or self.model_table is None or not self.bodies_valid:
+            return None
+        masses = np.array([b.mass for b in self.s["bodies"]])
+        feedforward = np.zeros((m, 6))
+        if pose.feedforward == "weight":
+            feedforward[:, 2] = masses.sum() * self.model_table.gravity / m
+        return PoseTracking(
+            y_ref=jnp.asarray(self.y_init[1:]),
+            feedforward=jnp.asarray(feedforward),
+            kp=jnp.asarray(pose.kp),
+            kd=jnp.asarray(pose.kd),
+            height=pose.lift_height,
+            duration=pose.lift_time,
+        )
+
+    def prescribed(self):
+        table = self.s.get("prescribed")
+        if table is None or self.index is None:
+            return None
+        coords = self.coordinate_names
+        mask = np.zeros((len(self.names), 6), dtype=bool)
+        for name, wanted in table.coordinates.items():
+            if name not in self.index:
+                self.add("[prescribed.coordinates]", name, self.body_problem(name))
+                continue
+            if not wanted:
+                self.add("[prescribed.coordinates]", name, "empty list of coordinates")
+            for c in coords if wanted == ["all"] else wanted:
+                if c not in coords:
+                    self.add(
+                        "[prescribed.coordinates]",
+                        name,
+                        f"unknown coordinate '{c}' (with convention "
+                        f"'{self.rotation.name}': {', '.join(coords)}, or \"all\")",
+                    )
+                else:
+                    mask[self.index[name], coords.index(c)] = True
+        if self.y_init is None:
+            return None
+        if table.motion is None:
+            return PrescribedSpec(mask, None, self.y_init.copy())
+        series = self.series_columns(
+            "motion.csv",
+            table.motion.csv,
+            "[prescribed]",
+            lambda body: [c for c, on in zip(coords, mask[self.index[body]]) if on],
+            "a prescribed coordinate of that body",
+            coords,
+        )
+        if series is None:
+            return None
+        times, parsed = series
+        values = np.broadcast_to(self.y_init, (len(times), *self.y_init.shape)).copy()
+        scale = math.pi / 180 if table.motion.angle_unit == "degrees" else 1.0
+        for (k, c), column in parsed.items():
+            values[:, k, c] = column * (scale if c >= 3 else 1.0)
+        return PrescribedSpec(mask, times, values)
+
+    # -- stage 3: build --------------------------------------------------------------
+    def build(self) -> Scenario:
+        self.validate_tables()
+        self.index = self.names = None
+        self.bodies_valid = False
+        self.check_bodies()
+        self.model_table = self.s.get("model")
+        convention = self.model_table.convention if self.model_table else "zxz"
+        self.rotation = get_rotation(convention)
+        self.coordinate_names = ("x", "y", "z", *self.rotation.angle_names)
+        initial = self.poses("initial", rates=True)
+        self.y_init, ydot_init = initial if initial is not None else (None, None)
+        unloaded = self.poses("unloaded", rates=False)
+        if unloaded is None:
+            unloaded = self.y_init
+        self.ts = self.check_time()
+        kind = self.model_table.kind if self.model_table else None
+        conns, matrices = None, None
+        if kind == "mobile":
+            if "immobile" in self.raw:
+                self.add(
+                    "[immobile]",
+                    "",
+                    "K and D belong to kind = 'immobile'; the mobile model takes "
+                    "[[connections]]",
+                )
+            conns = self.connections(unloaded)
+        elif kind == "immobile":
+            if "connections" in self.raw:
+                self.add(
+                    "[[connections]]",
+                    "",
+                    "connections belong to kind = 'mobile'; the immobile model "
+                    "takes K and D in [immobile]",
+                )
+            if "immobile" not in self.raw:
+                self.add(
+                    "[immobile]", "", "missing table (K and D) for kind = 'immobile'"
+                )
+            matrices = self.immobile_matrices()
+        forces = self.forces()
+        prescribed = self.prescribed()
+        self.problems.raise_if_any()
+
+        bodies = []
+        for k, b in enumerate(self.s["bodies"]):
+            try:
+                bodies.append(RigidBody(b.mass, b.inertia))
+            except ValueError as err:
+                self.add(_array_label("bodies", k, self.raw["bodies"][k]), "", str(err))
+        self.problems.raise_if_any()
+        gravity = self.model_table.gravity
+        try:
+            if kind == "mobile":
+                model = MobileModel(bodies, conns[0], gravity, convention)
+            else:
+                model = ImmobileModel(
+                    bodies, matrices["K"], matrices["D"], unloaded, gravity, convention
+                )
+        except ValueError as err:
+            self.add("[model]", "", str(err))
+            self.problems.raise_if_any()
+        solver = self.s.get("solver") or schema.SolverTable()
+        source = pathlib.Path(self.source)
+        name = self.info.name or source.stem
+        return Scenario(
+            name=name,
+            model=model,
+            y_init=jnp.asarray(self.y_init),
+            ydot_init=jnp.asarray(ydot_init),
+            ts=jnp.asarray(self.ts),
+            forces=forces,
+            body_names=tuple(self.names),
+            connection_names=conns[1] if conns is not None else (),
+            solver=solver.name,
+            rtol=solver.rtol,
+            atol=solver.atol,
+            max_steps=solver.max_steps,
+            prescribed=prescribed,
+            description=self.info.description,
+            source=self.source,
+        )
+
+
+__all__ = ["load_scenario", "build_scenario"]

@@ -1,0 +1,129 @@
+"""Collect every problem of a scenario file and report them in one message."""
+
+import difflib
+from typing import NamedTuple
+
+
+class Problem(NamedTuple):
+    table: str  # e.g. "[[bodies]] #2 (left)", "[initial.beam]"
+    key: str  # e.g. "mass", "angles.degrees", "" for the whole table
+    message: str
+
+
+class ScenarioError(ValueError):
+    """A scenario file is invalid; `.problems` lists every problem found, each with
+    its table, key and message, and `str(error)` names the file and all of them."""
+
+    def __init__(self, source: str, problems: list[Problem]):
+        self.source = str(source)
+        self.problems = list(problems)
+        super().__init__(format_problems(self.source, self.problems))
+
+
+def format_problems(source: str, problems: list[Problem]) -> str:
+    n = len(problems)
+    lines = [f"{source}: {n} problem{'s' if n != 1 else ''} in the scenario file:"]
+    for p in problems:
+        if p.table == "(file)":
+            lines.append(f"  - {p.message}")
+            continue
+        where = f"table {p.table}" + (f", key '{p.key}'" if p.key else "")
+        lines.append(f"  - {where}: {p.message}")
+    return "\n".join(lines)
+
+
+def _all_field_names() -> list[str]:
+    from . import schema
+
+    names = set(schema.SECTIONS) | set(schema.TOP_LEVEL_KEYS)
+    for obj in vars(schema).values():
+        if isinstance(obj, type) and issubclass(obj, schema.Table):
+            names |= set(obj.model_fields)
+    return sorted(names)
+
+
+def unknown_key_message(key, allowed=None) -> str:
+    """'unknown key' with a did-you-mean suggestion from the schema's key names."""
+    candidates = list(allowed) if allowed is not None else _all_field_names()
+    close = difflib.get_close_matches(str(key), candidates, n=1)
+    return "unknown key" + (f" (did you mean '{close[0]}'?)" if close else "")
+
+
+def _show(value) -> str:
+    if isinstance(value, dict | list) and len(str(value)) > 60:
+        return type(value).__name__
+    return repr(value)
+
+
+def _message(err: dict) -> str:
+    kind = err["type"]
+    if kind == "missing":
+        return "missing required key"
+    if kind == "extra_forbidden":
+        return unknown_key_message(err["loc"][-1] if err["loc"] else "")
+    msg = err["msg"]
+    if msg.startswith("Value error, "):
+        return msg[len("Value error, ") :]
+    msg = msg.replace(" after validation", "")
+    return f"{msg[0].lower()}{msg[1:]} (got {_show(err.get('input'))})"
+
+
+def locate(section: str, shape: str, raw, loc: tuple) -> tuple[str, str]:
+    """Table and key of a pydantic error location within one top-level section.
+
+    Leading locations whose raw value is a TOML table become the table path
+    (`[forces.pose_tracking]`); the rest is the key (`kp[2]`).
+    """
+    loc = list(loc)
+    if shape == "array":
+        if loc and isinstance(loc[0], int):
+            k = loc.pop(0)
+            entry = raw[k] if isinstance(raw, list) and k < len(raw) else None
+            name = entry.get("name") if isinstance(entry, dict) else None
+            label = f" ({name})" if isinstance(name, str) else ""
+            table, node = f"[[{section}]] #{k + 1}{label}", entry
+        else:
+            table, node = f"[[{section}]]", raw
+        path = []
+    else:
+        table, path, node = None, [section], raw
+    while len(loc) > 1 and isinstance(loc[0], str) and isinstance(node, dict):
+        nxt = node.get(loc[0])
+        if not isinstance(nxt, dict):
+            break
+        path.append(loc.pop(0))
+        node = nxt
+    if table is None:
+        table = "[" + ".".join(path) + "]"
+    elif path:
+        table = table + "." + ".".join(path)
+    key = ""
+    for part in loc:
+        if isinstance(part, int):
+            key += f"[{part}]"
+        else:
+            key += ("." if key else "") + str(part)
+    return table, key
+
+
+class Problems:
+    """A list of problems for one scenario file."""
+
+    def __init__(self, source: str):
+        self.source = str(source)
+        self.items: list[Problem] = []
+
+    def add(self, table: str, key: str, message: str) -> None:
+        self.items.append(Problem(table, key, message))
+
+    def add_validation_error(self, section, shape, raw, error, prefix=()) -> None:
+        for err in error.errors():
+            table, key = locate(section, shape, raw, (*prefix, *err["loc"]))
+            self.add(table, key, _message(err))
+
+    def raise_if_any(self) -> None:
+        if self.items:
+            raise ScenarioError(self.source, self.items)
+
+    def __bool__(self):
+        return bool(self.items)

@@ -1,0 +1,259 @@
+"""The scenario-file schema: one pydantic model per TOML table.
+
+Every table forbids unknown keys and is strict about types (an integer is accepted
+where a number is expected, nothing else is converted). Checks that need more than
+one table (a connection naming a body, a CSV column naming a coordinate) are done
+when the scenario is built (`elasticoop._config.build`).
+"""
+
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    field_validator,
+    model_validator,
+)
+
+Number = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
+Vector6 = Annotated[list[Number], Field(min_length=6, max_length=6)]
+NonNegative6 = Annotated[list[NonNegative], Field(min_length=6, max_length=6)]
+# Body names appear in CSV headers as "<body>.<column>", hence no dots or spaces.
+Name = Annotated[
+    str,
+    Field(
+        pattern=r"^[A-Za-z_][A-Za-z0-9_\-]*$",
+        description="a body name: letters, digits, '_' and '-', no spaces or dots",
+    ),
+]
+AngleUnit = Literal["degrees", "radians"]
+
+SOLVERS = ("tsit5", "dopri5", "dopri8", "bosh3", "heun", "kvaerno3", "kvaerno5")
+
+
+class Table(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+def _angle_unit_stated(value):
+    if isinstance(value, list):
+        raise ValueError(
+            "angles need a stated unit: write { degrees = [a1, a2, a3] } or "
+            "{ radians = [a1, a2, a3] }"
+        )
+    if isinstance(value, dict):
+        unknown = set(value) - {"degrees", "radians"}
+        if unknown:
+            raise ValueError(
+                f"unknown angle unit {sorted(unknown)[0]!r}: use 'degrees' or 'radians'"
+            )
+        if len(value) != 1:
+            raise ValueError("give the angles in exactly one unit, degrees or radians")
+    return value
+
+
+class _Angles(Table):
+    degrees: Vector3 | None = None
+    radians: Vector3 | None = None
+
+    def to_radians(self) -> list[float]:
+        if self.radians is not None:
+            return list(self.radians)
+        return [math.radians(a) for a in self.degrees]
+
+
+Angles = Annotated[_Angles, BeforeValidator(_angle_unit_stated)]
+OptionalAngles = Annotated[_Angles | None, BeforeValidator(_angle_unit_stated)]
+
+
+def _matrix(value):
+    """A matrix inline (rows of numbers) or the path of a .npy or .csv file."""
+    if isinstance(value, str):
+        return value
+    if not isinstance(value, list) or not all(isinstance(r, list) for r in value):
+        raise ValueError(
+            "give a matrix as rows of numbers ([[...], [...]]) or a .npy/.csv path"
+        )
+    for r, row in enumerate(value):
+        for c, entry in enumerate(row):
+            ok = isinstance(entry, int | float) and not isinstance(entry, bool)
+            if not ok or not math.isfinite(entry):
+                raise ValueError(
+                    f"entry [{r}][{c}] must be a finite number, got {entry!r}"
+                )
+    return value
+
+
+Matrix = Annotated[Any, BeforeValidator(_matrix)]
+
+
+def _coordinate_list(value):
+    if value == "all":
+        return ["all"]
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ValueError('give a list of coordinate names (e.g. ["x", "z"]) or "all"')
+    return value
+
+
+def _motion(value):
+    if value == "hold":
+        return None
+    if isinstance(value, str):
+        raise ValueError(
+            f'motion must be "hold" or {{ csv = "FILE", angle_unit = ... }}, '
+            f"got {value!r}"
+        )
+    return value
+
+
+class ScenarioInfo(Table):
+    """Top-level keys: `name` (default: the file name) and `description`."""
+
+    name: str | None = Field(default=None, min_length=1)
+    description: str = ""
+
+
+class ModelTable(Table):
+    """`[model]`: which appendix, Euler convention and gravity."""
+
+    kind: Literal["mobile", "immobile"]
+    convention: Literal["zxz", "rpy"] = "zxz"
+    gravity: NonNegative = 9.81
+
+
+class BodyTable(Table):
+    """`[[bodies]]`: one rigid body; the first one is the manipulated object."""
+
+    name: Name
+    mass: Positive
+    inertia: Annotated[list[Positive], Field(min_length=3, max_length=3)]
+
+    @field_validator("inertia")
+    @classmethod
+    def _triangle(cls, inertia):
+        a, b, c = inertia
+        slack = 1e-12 * (a + b + c)
+        if a + b + slack < c or b + c + slack < a or c + a + slack < b:
+            raise ValueError(
+                f"principal moments {inertia} violate the triangle inequality "
+                "(A + B >= C, B + C >= A, C + A >= B)"
+            )
+        return inertia
+
+
+class PoseTable(Table):
+    """`[unloaded.<body>]`: a pose, position [m] and Euler angles (unit stated)."""
+
+    position: Vector3
+    angles: Angles
+
+
+class InitialTable(PoseTable):
+    """`[initial.<body>]`: pose and rates (velocity [m/s], angle rates per s)."""
+
+    velocity: Vector3 = [0.0, 0.0, 0.0]
+    angle_rates: OptionalAngles = None
+
+
+class ConnectionTable(Table):
+    """`[[connections]]`: one elastic link of the mobile model (Appendix B)."""
+
+    bodies: Annotated[list[Name], Field(min_length=2, max_length=2)]
+    stiffness: NonNegative6
+    damping: NonNegative6
+    rest_length: NonNegative | None = None
+    rest_angles: OptionalAngles = None
+    name: Name | None = None
+
+
+class ImmobileTable(Table):
+    """`[immobile]`: stiffness K and damping D of Appendix A, (6m+6) x (6m+6)."""
+
+    K: Matrix
+    D: Matrix
+
+
+class PoseTrackingTable(Table):
+    """`[forces.pose_tracking]`: PD control of the grasp poses along a lift."""
+
+    lift_height: Number
+    lift_time: Positive
+    kp: NonNegative6
+    kd: NonNegative6
+    feedforward: Literal["weight", "none"] = "weight"
+
+
+class ForcesTable(Table):
+    """`[forces]`: exactly one of `constant`, `samples`, `pose_tracking`."""
+
+    constant: dict[Name, Vector6] | None = None
+    samples: str | None = None
+    pose_tracking: PoseTrackingTable | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self):
+        given = [
+            k for k in ("constant", "samples", "pose_tracking") if getattr(self, k)
+        ]
+        if len(given) != 1:
+            raise ValueError(
+                "give exactly one of 'constant', 'samples' or 'pose_tracking'"
+                + (f" (got {', '.join(given)})" if given else "")
+            )
+        return self
+
+
+class TimeTable(Table):
+    """`[time]`: time span [s] and the number of evenly spaced output samples."""
+
+    start: Number = 0.0
+    stop: Number
+    samples: Annotated[int, Field(ge=2)] = 101
+
+
+class SolverTable(Table):
+    """`[solver]`: diffrax solver by name and the step-size controller's tolerances."""
+
+    name: Literal[SOLVERS] = "tsit5"
+    rtol: Positive = 1e-8
+    atol: Positive = 1e-10
+    max_steps: Annotated[int, Field(ge=1)] = 100_000
+
+
+class MotionCsv(Table):
+    csv: str
+    angle_unit: AngleUnit
+
+
+class PrescribedTable(Table):
+    """`[prescribed]`: coordinates given as functions of time."""
+
+    coordinates: dict[Name, Annotated[list[str], BeforeValidator(_coordinate_list)]] = (
+        Field(min_length=1)
+    )
+    # None: "hold" (keep the initial value)
+    motion: Annotated[MotionCsv | None, BeforeValidator(_motion)] = None
+
+
+# Top-level layout: table name -> (schema, shape): "table", "array" (array of
+# tables) or "by_body" (a table of tables keyed by body name).
+SECTIONS = {
+    "model": (ModelTable, "table"),
+    "bodies": (BodyTable, "array"),
+    "connections": (ConnectionTable, "array"),
+    "immobile": (ImmobileTable, "table"),
+    "initial": (InitialTable, "by_body"),
+    "unloaded": (PoseTable, "by_body"),
+    "forces": (ForcesTable, "table"),
+    "prescribed": (PrescribedTable, "table"),
+    "time": (TimeTable, "table"),
+    "solver": (SolverTable, "table"),
+}
+REQUIRED = ("model", "bodies", "initial", "time")
+TOP_LEVEL_KEYS = ("name", "description")

@@ -1,0 +1,331 @@
+"""Trajectories as data a researcher can open: an xarray Dataset (netCDF), a wide
+CSV table and a JSON-ready summary."""
+
+import json
+import pathlib
+
+import numpy as np
+
+from ._models import ImmobileModel, MobileModel
+
+# (translation, rotation) units of the per-coordinate variables.
+_UNITS = {
+    "y": ("m", "rad"),
+    "ydot": ("m/s", "rad/s"),
+    "elastic_force": ("N", "N m"),
+    "elastic_wrench": ("N", "N m"),
+    "reaction": ("N", "N m"),
+}
+_ENERGIES = {
+    "kinetic_energy": "kinetic energy T",
+    "elastic_energy": "elastic potential energy Pi",
+    "gravity_energy": "gravity potential energy sum m_i g z_i",
+    "work": "work of the applied forces since t0",
+    "dissipated": "energy dissipated since t0",
+    "energy_residual": "E - E(t0) - work + dissipated (zero up to solver error)",
+}
+
+
+def coordinate_names(model) -> tuple[str, ...]:
+    """`("x", "y", "z")` followed by the convention's angle names."""
+    return ("x", "y", "z", *model.rotation.angle_names)
+
+
+def _names(given, n, default, what):
+    if given is None:
+        return default
+    names = tuple(str(b) for b in given)
+    if len(names) != n or len(set(names)) != n:
+        raise ValueError(f"{what} must be {n} distinct names, got {list(given)}")
+    return names
+
+
+def trajectory_to_xarray(
+    traj, body_names=None, connection_names=None, attrs=None
+) -> "xarray.Dataset":  # noqa: F821
+    """The trajectory as an `xarray.Dataset`.
+
+    Dimensions `time` [s], `body` (named), `coordinate` ($x, y, z$ and the
+    convention's Euler angles; the non-dimension coordinate `coordinate_unit` gives
+    m or rad), and for a `MobileModel` `connection` (named `"<i>-<j>"` by default).
+
+    **Variables:** `y`, `ydot` $(t, body, coordinate)$; the energies
+    `kinetic_energy`, `elastic_energy`, `gravity_energy`, `work`, `dissipated`,
+    `energy_residual` [J]; `elastic_force` $\\partial\\Pi/\\partial Y$;
+    `elastic_wrench` per connection (`MobileModel`); `reaction` when the trajectory
+    has one; and the model's parameters (`mass`, `inertia`, `stiffness`, `damping`,
+    `rest_length`, `rest_angles`, or `K`, `D`, `y0`). Every variable has `units`
+    and `long_name` attributes; the Dataset's attributes hold the model kind,
+    convention, gravity, status and whatever `attrs` adds (scalars and strings).
+
+    **Arguments:**
+
+    - `traj`: a single (un-batched) `Trajectory`.
+    - `body_names`: names of the bodies (default `object, contact1, ...`).
+    - `connection_names`: names of the connections (default `"<i>-<j>"` with body
+      names).
+    - `attrs`: extra global attributes.
+    """
+    import xarray as xr
+
+    from ._scenario import default_body_names
+    from ._trajectory import describe
+
+    if np.ndim(traj.ts) != 1:
+        raise ValueError(
+            "to_xarray needs a single trajectory (ts of shape (times,)), got ts of "
+            f"shape {np.shape(traj.ts)}; index the batch first"
+        )
+    model = traj.model
+    n = model.n_bodies
+    bodies = _names(body_names, n, default_body_names(n), "body_names")
+    coords = coordinate_names(model)
+    coordinate_unit = ["m"] * 3 + ["rad"] * 3
+    ds = xr.Dataset(
+        coords={
+            "time": ("time", np.asarray(traj.ts), {"units": "s", "long_name": "time"}),
+            "body": ("body", list(bodies)),
+            "coordinate": ("coordinate", list(coords)),
+            "coordinate_unit": ("coordinate", coordinate_unit),
+        }
+    )
+
+    def per_coordinate(name, values, long_name, dims=("time", "body", "coordinate")):
+        t, r = _UNITS[name]
+        angles = ", ".join(coords[3:])
+        ds[name] = (
+            dims,
+            np.asarray(values),
+            {"long_name": long_name, "units": f"{t} (x, y, z); {r} ({angles})"},
+        )
+
+    per_coordinate("y", traj.y, "generalized coordinates Y")
+    per_coordinate("ydot", traj.ydot, "generalized velocities dY/dt")
+    energies = {
+        "kinetic_energy": traj.kinetic_energy(),
+        "elastic_energy": traj.elastic_energy(),
+        "gravity_energy": traj.gravity_energy(),
+        "work": traj.work,
+        "dissipated": traj.dissipated,
+        "energy_residual": traj.energy_residual(),
+    }
+    for name, values in energies.items():
+        ds[name] = (
+            "time",
+            np.asarray(values),
+            {"long_name": _ENERGIES[name], "units": "J"},
+        )
+    per_coordinate("elastic_force", traj.elastic_forces(), "elastic force dPi/dY")
+    if traj.reaction is not None:
+        per_coordinate(
+            "reaction", traj.reaction, "generalized force holding the prescribed motion"
+        )
+
+    ds["mass"] = ("body", np.asarray(model.bodies.mass), {"units": "kg"})
+    ds["inertia"] = (
+        ("body", "principal_axis"),
+        np.asarray(model.bodies.inertia),
+        {"units": "kg m^2", "long_name": "principal moments of inertia A, B, C"},
+    )
+    ds = ds.assign_coords(principal_axis=["A", "B", "C"])
+    if isinstance(model, MobileModel):
+        pairs = np.asarray(model.pairs)
+        default = tuple(f"{bodies[i]}-{bodies[j]}" for i, j in pairs)
+        conns = _names(connection_names, len(pairs), default, "connection_names")
+        ds = ds.assign_coords(
+            connection=list(conns),
+            body_i=("connection", [bodies[i] for i in pairs[:, 0]]),
+            body_j=("connection", [bodies[j] for j in pairs[:, 1]]),
+            angle=list(coords[3:]),
+        )
+        per_coordinate(
+            "elastic_wrench",
+            traj.elastic_wrench(),
+            "elastic wrench of each connection on body_i, -dPi_ij/dY_i",
+            dims=("time", "connection", "coordinate"),
+        )
+        for name, units in (
+            ("stiffness", "N/m; N m/rad"),
+            ("damping", "N s/m; N m s/rad"),
+        ):
+            ds[name] = (
+                ("connection", "coordinate"),
+                np.asarray(getattr(model, name)),
+                {"units": units},
+            )
+        ds["rest_length"] = (
+            "connection",
+            np.asarray(model.rest_length),
+            {"units": "m"},
+        )
+        ds["rest_angles"] = (
+            ("connection", "angle"),
+            np.asarray(model.rest_angles),
+            {"units": "rad"},
+        )
+    elif isinstance(model, ImmobileModel):
+        dof = [f"{b}.{c}" for b in bodies for c in coords]
+        ds = ds.assign_coords(dof=dof, dof_col=dof)
+        ds["K"] = (
+            ("dof", "dof_col"),
+            np.asarray(model.K),
+            {"units": "N/m, N, N m/rad (by block)", "long_name": "stiffness matrix"},
+        )
+        ds["D"] = (
+            ("dof", "dof_col"),
+            np.asarray(model.D),
+            {
+                "units": "N s/m, N s, N m s/rad (by block)",
+                "long_name": "damping matrix",
+            },
+        )
+        ds["y0"] = (
+            ("body", "coordinate"),
+            np.asarray(model.y0),
+            {"units": "m; rad", "long_name": "unloaded configuration Y0"},
+        )
+    ds.attrs.update(
+        {
+            "title": "elasticoop trajectory",
+            "model": type(model).__name__,
+            "convention": model.convention,
+            "gravity": float(model.gravity),
+            "gravity_units": "m/s^2 along -z",
+            "n_bodies": n,
+            "status": int(traj.status),
+            "status_message": describe(traj),
+            "event_time": float(traj.event_time),
+            "elasticoop_version": _version(),
+        }
+    )
+    for key, value in (attrs or {}).items():
+        ds.attrs[key] = value if not isinstance(value, bool) else int(value)
+    return ds
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def dataset_to_frame(ds) -> "pandas.DataFrame":  # noqa: F821
+    """The time-dependent variables of a trajectory Dataset as one wide table: a
+    column `time [s]`, then one column per variable and label, named
+    `<variable>.<body or connection>.<coordinate> [unit]` (`y.beam.z [m]`)."""
+    import pandas as pd
+
+    columns = {"time [s]": ds["time"].values}
+    for name, var in ds.data_vars.items():
+        if var.dims[:1] != ("time",):
+            continue
+        if var.ndim == 1:
+            columns[f"{name} [{var.attrs.get('units', '')}]"] = var.values
+            continue
+        first, _ = var.dims[1:]
+        t_unit, r_unit = _UNITS[name]
+        for a, label in enumerate(ds[first].values):
+            for c, coord in enumerate(ds["coordinate"].values):
+                unit = t_unit if c < 3 else r_unit
+                columns[f"{name}.{label}.{coord} [{unit}]"] = var.values[:, a, c]
+    return pd.DataFrame(columns)
+
+
+def summarize(traj, body_names=None, connection_names=None) -> dict:
+    """A JSON-ready summary of a trajectory: object displacement and rotation, peak
+    elastic force and torque per connection (`MobileModel`) or per contact body
+    (`ImmobileModel`, from $\\partial\\Pi/\\partial Y$), and the energy balance
+    $\\Delta(T + \\Pi + \\sum m g z) = W_F - E_{diss}$ with its residual."""
+    from ._scenario import default_body_names
+    from ._trajectory import describe
+
+    model = traj.model
+    n = model.n_bodies
+    bodies = _names(body_names, n, default_body_names(n), "body_names")
+    y = np.asarray(traj.y)
+    last = int(np.max(np.nonzero(np.all(np.isfinite(y), axis=(1, 2)))[0], initial=0))
+    kinetic = np.asarray(traj.kinetic_energy())
+    elastic = np.asarray(traj.elastic_energy())
+    gravity = np.asarray(traj.gravity_energy())
+    work = float(traj.work[last])
+    dissipated = float(traj.dissipated[last])
+    change = (kinetic[last] + elastic[last] + gravity[last]) - (
+        kinetic[0] + elastic[0] + gravity[0]
+    )
+    residual = change - work + dissipated
+    if isinstance(model, MobileModel):
+        wrench = np.asarray(traj.elastic_wrench())[: last + 1]
+        pairs = np.asarray(model.pairs).tolist()
+        default = [f"{bodies[i]}-{bodies[j]}" for i, j in pairs]
+        labels = list(connection_names or default)
+        peak_of = "connection"
+    else:
+        wrench = np.asarray(traj.elastic_forces())[: last + 1, 1:]
+        pairs = [[0, k] for k in range(1, n)]
+        labels = list(bodies[1:])
+        peak_of = "contact body"
+    return {
+        "status": int(traj.status),
+        "message": describe(traj),
+        "model": type(model).__name__,
+        "convention": model.convention,
+        "bodies": list(bodies),
+        "simulated_time": float(traj.ts[last] - traj.ts[0]),
+        "object_displacement": (y[last, 0, :3] - y[0, 0, :3]).tolist(),
+        "object_rotation": (y[last, 0, 3:] - y[0, 0, 3:]).tolist(),
+        "peak_of": peak_of,
+        "peak_labels": labels,
+        "peak_force": np.max(
+            np.linalg.norm(wrench[:, :, :3], axis=-1), axis=0, initial=0.0
+        ).tolist(),
+        "peak_torque": np.max(
+            np.linalg.norm(wrench[:, :, 3:], axis=-1), axis=0, initial=0.0
+        ).tolist(),
+        "energy": {
+            "kinetic_final": float(kinetic[last]),
+            "elastic_final": float(elastic[last]),
+            "gravity_change": float(gravity[last] - gravity[0]),
+            "total_change": float(change),
+            "work_of_forces": work,
+            "dissipated": dissipated,
+            "residual": float(residual),
+            "relative_residual": float(
+                abs(residual) / max(abs(work), abs(dissipated), abs(change), 1e-300)
+            ),
+        },
+        "pairs": pairs,
+    }
+
+
+def write_outputs(ds, summary: dict, outdir) -> dict[str, pathlib.Path]:
+    """Write `trajectory.nc` (netCDF4 via h5netcdf), `trajectory.csv` and
+    `summary.json` into `outdir` (created if needed); returns the paths."""
+    outdir = pathlib.Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "netcdf": outdir / "trajectory.nc",
+        "csv": outdir / "trajectory.csv",
+        "summary": outdir / "summary.json",
+    }
+    ds.to_netcdf(paths["netcdf"], engine="h5netcdf")
+    dataset_to_frame(ds).to_csv(paths["csv"], index=False)
+    paths["summary"].write_text(json.dumps(summary, indent=2) + "\n")
+    return paths
+
+
+def scenario_summary(scenario, traj, wall_time=None) -> dict:
+    """`summarize` for a run of a `Scenario`, with the scenario's name, file,
+    solver settings and the wall time [s] (compilation included)."""
+    summary = {
+        "scenario": scenario.name,
+        "scenario_file": scenario.source,
+        "solver": {
+            "name": scenario.solver,
+            "rtol": scenario.rtol,
+            "atol": scenario.atol,
+            "max_steps": scenario.max_steps,
+        },
+        "wall_time": wall_time,
+    }
+    summary.update(summarize(traj, scenario.names, scenario.connection_names or None))
+    return summary

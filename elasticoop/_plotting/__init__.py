@@ -1,0 +1,8 @@
+"""Plots of a trajectory (matplotlib); every function returns the Figure."""
+
+from .time_series import (
+    plot_coordinates as plot_coordinates,
+    plot_elastic_wrench as plot_elastic_wrench,
+    plot_energy as plot_energy,
+)
+from .view3d import plot_snapshots as plot_snapshots, save_animation as save_animation

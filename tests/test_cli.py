@@ -1,0 +1,204 @@
+"""The command line, end to end in temporary folders (in-process through
+`main([...])`, plus one subprocess smoke test)."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+
+from elasticoop import GIMBAL_TOL
+from elasticoop._cli import _common, main
+from elasticoop._scenario import example_files
+
+EXAMPLES = sorted(example_files())
+EXPECTED_BODIES = {"beam_lift": 3, "hanging_object": 2, "plate_lift": 4}
+PLOTS = ("coordinates.png", "elastic_wrench.png", "energy.png", "snapshots.png")
+
+# A free body spun about a principal axis keeps its pitch rate, and reaches the RPY
+# singularity (pitch = 90 deg) at t = 10 deg / (60 deg/s) = 1/6 s.
+GIMBAL = """\
+name = "spinning into gimbal lock"
+[model]
+kind = "mobile"
+convention = "rpy"
+gravity = 0.0
+[[bodies]]
+name = "disc"
+mass = 1.0
+inertia = [0.01, 0.01, 0.01]
+[initial.disc]
+position = [0.0, 0.0, 0.0]
+angles = { degrees = [0.0, 80.0, 0.0] }
+angle_rates = { degrees = [0.0, 60.0, 0.0] }
+[time]
+stop = 0.5
+samples = 11
+"""
+
+
+@pytest.fixture(scope="module")
+def examples_dir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("examples")
+    assert main(["examples", "--copy", str(folder), "-q"]) == 0
+    return folder
+
+
+def test_examples_are_listed_and_copied(examples_dir, capsys):
+    assert EXAMPLES == sorted(EXPECTED_BODIES)
+    assert main(["examples"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in EXAMPLES)
+    copied = {p.name for p in examples_dir.iterdir()}
+    assert {f"{name}.toml" for name in EXAMPLES} <= copied
+    assert "hanging_object_K.csv" in copied
+
+
+def test_check_accepts_every_example(examples_dir, capsys):
+    files = [str(examples_dir / f"{name}.toml") for name in EXAMPLES]
+    assert main(["check", *files]) == 0
+    out = capsys.readouterr().out
+    assert out.count("valid scenario") == len(EXAMPLES)
+    assert main(["check", "-q", files[0]]) == 0
+    assert capsys.readouterr().out == ""
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_run_every_example(examples_dir, tmp_path, capsys, name):
+    outdir = tmp_path / "out"
+    plots = [] if name == "beam_lift" else ["--no-plots"]
+    code = main(["run", str(examples_dir / f"{name}.toml"), "-o", str(outdir), *plots])
+    assert code == 0, capsys.readouterr().err
+    out = capsys.readouterr().out
+    assert "energy balance" in out and "trajectory.nc" in out
+    n = EXPECTED_BODIES[name]
+    with xr.open_dataset(outdir / "trajectory.nc", engine="h5netcdf") as ds:
+        samples = ds.sizes["time"]
+        assert ds["y"].shape == (samples, n, 6)
+        assert ds["y"].dims == ("time", "body", "coordinate")
+        assert ds.attrs["status"] == 0
+        assert ds.attrs["scenario_file"].endswith(f"{name}.toml")
+        assert np.all(np.isfinite(ds["y"].values))
+        residual = np.max(np.abs(ds["energy_residual"].values))
+        scale = np.max(np.abs(ds["work"].values)) + np.max(ds["dissipated"].values)
+        assert residual < 1e-5 * scale  # the energy balance closes
+    frame = pd.read_csv(outdir / "trajectory.csv")
+    assert frame.shape[0] == samples and frame.columns[0] == "time [s]"
+    summary = json.loads((outdir / "summary.json").read_text())
+    assert summary["status"] == 0 and len(summary["bodies"]) == n
+    assert summary["scenario_file"].endswith(f"{name}.toml")
+    written = {p.name for p in outdir.iterdir()}
+    assert set(PLOTS) <= written if not plots else not set(PLOTS) & written
+
+
+def test_hanging_object_physics_from_the_output_files(examples_dir, tmp_path):
+    # Independent checks on the written data: (1) no external torque, so the yaw
+    # momentum sum C_i yaw_i' (roll = pitch = 0 stay) is conserved; (2) once
+    # settled, the spring carries the object's weight: z_obj - z_grasp - (-0.1)
+    # = -m_obj g / k_z.
+    outdir = tmp_path / "out"
+    scenario = str(examples_dir / "hanging_object.toml")
+    assert main(["run", scenario, "-o", str(outdir), "--no-plots", "-q"]) == 0
+    with xr.open_dataset(outdir / "trajectory.nc", engine="h5netcdf") as ds:
+        c = ds["inertia"].sel(principal_axis="C").values
+        yaw_rate = ds["ydot"].sel(coordinate="yaw").values
+        momentum = yaw_rate @ c
+        np.testing.assert_allclose(momentum, momentum[0], rtol=1e-6)
+        z = ds["y"].sel(coordinate="z").values
+        sag = z[-1, 0] - z[-1, 1] + 0.1
+        k_z = ds["K"].values[2, 2]
+        np.testing.assert_allclose(sag, -0.5 * 9.81 / k_z, rtol=1e-4)
+
+
+def test_demo_runs_quietly_and_writes_outputs(tmp_path, capsys):
+    assert main(["demo", "-q", "-o", str(tmp_path / "demo"), "--no-plots"]) == 2
+    capsys.readouterr()  # demo has no --no-plots: a usage error
+    assert main(["demo", "-q"]) == 0
+    assert capsys.readouterr().out == ""
+
+
+def test_help_on_every_command(capsys):
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    for command in ("run", "check", "demo", "examples"):
+        assert command in out
+        assert main([command, "--help"]) == 0
+        assert "usage: elasticoop " + command in capsys.readouterr().out
+
+
+def test_usage_errors(capsys, tmp_path):
+    assert main(["run"]) == 2  # missing SCENARIO and -o
+    assert "required" in capsys.readouterr().err
+    assert main(["fly"]) == 2
+    assert "invalid choice" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "none.toml"), "-o", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "no such scenario file" in err and "Traceback" not in err
+
+
+def test_simulation_stopping_early_exits_3_with_partial_results(tmp_path, capsys):
+    path = tmp_path / "gimbal.toml"
+    path.write_text(GIMBAL)
+    outdir = tmp_path / "out"
+    assert main(["run", str(path), "-o", str(outdir), "--no-plots"]) == 3
+    err = capsys.readouterr().err
+    assert "simulation stopped early" in err and "gimbal lock" in err
+    assert len(err.strip().splitlines()) == 1  # one paragraph, no traceback
+    summary = json.loads((outdir / "summary.json").read_text())
+    assert summary["status"] == 1
+    assert summary["simulated_time"] == pytest.approx(0.15)  # last sample before
+    with xr.open_dataset(outdir / "trajectory.nc", engine="h5netcdf") as ds:
+        # the run stops where |cos(pitch)| = GIMBAL_TOL, at constant pitch rate
+        stop = (np.arccos(GIMBAL_TOL) - np.radians(80)) / np.radians(60)
+        assert ds.attrs["event_time"] == pytest.approx(stop, rel=1e-6)
+
+
+def test_progress_bar_only_when_not_quiet_and_supported(monkeypatch):
+    import argparse
+
+    import diffrax
+
+    def simulate_with_meter(*args, progress_meter=None, **kwargs):
+        pass
+
+    monkeypatch.setattr(_common.sys.stderr, "isatty", lambda: True, raising=False)
+    monkeypatch.setattr(_common, "simulate", simulate_with_meter)
+    loud, quiet = argparse.Namespace(quiet=False), argparse.Namespace(quiet=True)
+    meter = _common.progress_overrides(loud)["progress_meter"]
+    assert isinstance(meter, diffrax.TqdmProgressMeter)
+    assert _common.progress_overrides(quiet) == {}
+    monkeypatch.setattr(_common, "simulate", lambda model, y, ydot, ts: None)
+    assert _common.progress_overrides(loud) == {}
+
+
+def test_console_entry_point_in_a_subprocess(examples_dir, tmp_path):
+    good = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "elasticoop",
+            "check",
+            str(examples_dir / "plate_lift.toml"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert good.returncode == 0, good.stderr
+    assert "valid scenario 'three-grasp plate lift'" in good.stdout
+    bad = tmp_path / "bad.toml"
+    shutil.copyfile(examples_dir / "plate_lift.toml", bad)
+    bad.write_text(bad.read_text().replace("mass = 1.5", "mass = -1.5"))
+    out = subprocess.run(
+        [sys.executable, "-m", "elasticoop", "check", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 2
+    assert "table [[bodies]] #1 (plate), key 'mass'" in out.stderr
+    assert "Traceback" not in out.stderr

@@ -1,0 +1,136 @@
+"""Plot functions: checked on the figure objects (axes, labels, legends, data)."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+from PIL import Image
+
+import elasticoop as eo
+from elasticoop._plotting import (
+    plot_coordinates,
+    plot_elastic_wrench,
+    plot_energy,
+    plot_snapshots,
+    save_animation,
+)
+
+UP = (0.0, np.pi / 2, 0.0)
+TS = jnp.linspace(0.0, 0.2, 11)
+# The residual is summed in another order than Trajectory.energy_residual: energies
+# of ~20 J agree to a few float64 roundings.
+ROUNDING = 1e-12
+
+
+def small_model():
+    bodies = [eo.RigidBody(1.0, (0.01,) * 3), eo.RigidBody(0.2, (1e-3,) * 3)]
+    link = eo.Connection(0, 1, (1e3,) * 3 + (5.0,) * 3, (5.0,) * 3 + (0.05,) * 3)
+    y0 = jnp.array([[0.0, 0.0, 1.0, *UP], [0.2, 0.0, 1.0, *UP]])
+    return eo.MobileModel(bodies, [link]).with_unloaded_state(y0), y0
+
+
+@pytest.fixture(scope="module")
+def traj():
+    model, y0 = small_model()
+    ydot0 = jnp.zeros_like(y0).at[1, 2].set(0.5)
+    return eo.simulate(model, y0, ydot0, TS, forces=[[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]])
+
+
+@pytest.fixture(scope="module")
+def immobile_traj(traj):
+    # The same motion viewed through the linearized (Appendix A) model: enough for
+    # layout and export checks, and no second compilation of `simulate`.
+    model, y0 = small_model()
+    return eqx.tree_at(lambda t: t.model, traj, eo.linearize_mobile(model, y0))
+
+
+def legend_labels(ax):
+    legend = ax.get_legend()
+    return [t.get_text() for t in legend.get_texts()] if legend else []
+
+
+def test_coordinates_figure(traj):
+    fig = plot_coordinates(traj, body_names=["obj", "grip"])
+    assert isinstance(fig, Figure)
+    axes = fig.get_axes()
+    assert len(axes) == 4  # positions and angles for each of 2 bodies
+    assert [ax.get_title() for ax in axes[:2]] == ["obj", "grip"]
+    assert axes[0].get_ylabel() == "change of position [m]"
+    assert axes[2].get_ylabel() == "change of Euler angle [deg]"
+    assert all(ax.get_xlabel() == "time [s]" for ax in axes[2:])
+    assert legend_labels(axes[1]) == ["x", "y", "z"]
+    assert legend_labels(axes[3]) == ["psi", "theta", "phi"]
+    # the z line of the grasp is its displacement from t0
+    z_line = axes[1].get_lines()[2]
+    np.testing.assert_allclose(z_line.get_ydata(), traj.y[:, 1, 2] - traj.y[0, 1, 2])
+    absolute = plot_coordinates(traj, relative=False).get_axes()
+    assert absolute[0].get_ylabel() == "position [m]"
+    assert absolute[0].get_title() == "object"
+
+
+def test_elastic_wrench_figure(traj, immobile_traj):
+    fig = plot_elastic_wrench(traj, connection_names=["grasp"])
+    top, bottom = fig.get_axes()
+    assert top.get_title().startswith("grasp")
+    assert top.get_ylabel() == "force [N]"
+    assert bottom.get_ylabel() == "generalized torque [N m]"
+    assert bottom.get_xlabel() == "time [s]"
+    assert legend_labels(top) == ["x", "y", "z", "|F|"]
+    assert legend_labels(bottom) == ["Q_psi", "Q_theta", "Q_phi"]
+    magnitude = top.get_lines()[3].get_ydata()
+    np.testing.assert_allclose(
+        magnitude, np.linalg.norm(traj.elastic_wrench()[:, 0, :3], axis=-1)
+    )
+    fig = plot_elastic_wrench(immobile_traj)
+    assert fig.get_axes()[0].get_title().startswith("contact1")
+    assert fig._suptitle.get_text() == "Elastic force on each contact body"
+
+
+def test_energy_figure(traj):
+    fig = plot_energy(traj)
+    top, bottom = fig.get_axes()
+    assert top.get_ylabel() == "energy [J]" and bottom.get_ylabel() == "residual [J]"
+    assert bottom.get_xlabel() == "time [s]"
+    assert legend_labels(top) == [
+        "kinetic T",
+        "elastic Pi",
+        "gravity m g z (change)",
+        "work of forces W_F",
+        "dissipated E_diss",
+        "total E (change)",
+    ]
+    total = top.get_lines()[5].get_ydata()
+    energy = np.asarray(traj.total_energy())
+    np.testing.assert_allclose(total, energy - energy[0], rtol=0, atol=ROUNDING)
+    np.testing.assert_allclose(
+        bottom.get_lines()[0].get_ydata(),
+        traj.energy_residual(),
+        rtol=0,
+        atol=ROUNDING,
+    )
+
+
+def test_snapshots_figure(traj, immobile_traj):
+    fig = plot_snapshots(traj, times=[0.0, 0.1, 0.2], body_names=["obj", "grip"])
+    axes = fig.get_axes()
+    assert len(axes) == 3 and all(ax.name == "3d" for ax in axes)
+    assert [ax.get_title() for ax in axes] == ["t = 0 s", "t = 0.1 s", "t = 0.2 s"]
+    assert (axes[0].get_xlabel(), axes[0].get_zlabel()) == ("x [m]", "z [m]")
+    # one link line, then a triad (3 lines) per body
+    assert len(axes[0].get_lines()) == 1 + 3 * 2
+    link = axes[-1].get_lines()[0]
+    np.testing.assert_allclose(link.get_data_3d()[2], traj.y[-1, :, 2])
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels == ["body x axis", "body y axis", "body z axis", "link"]
+    assert len(plot_snapshots(immobile_traj).get_axes()) == 4
+    with pytest.raises(ValueError, match="outside"):
+        plot_snapshots(traj, times=[5.0])
+
+
+def test_animation_gif(traj, tmp_path):
+    path = save_animation(traj, tmp_path / "motion.gif", max_frames=3)
+    with Image.open(path) as gif:
+        assert gif.n_frames == 3
+    with pytest.raises(ValueError, match=".gif or .mp4"):
+        save_animation(traj, tmp_path / "motion.avi")
