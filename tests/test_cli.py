@@ -124,7 +124,7 @@ def test_demo_runs_quietly_and_writes_outputs(tmp_path, capsys):
 def test_help_on_every_command(capsys):
     assert main(["--help"]) == 0
     out = capsys.readouterr().out
-    for command in ("run", "check", "demo", "examples"):
+    for command in ("run", "check", "demo", "examples", "modes"):
         assert command in out
         assert main([command, "--help"]) == 0
         assert "usage: elasticoop " + command in capsys.readouterr().out
@@ -202,3 +202,15 @@ def test_console_entry_point_in_a_subprocess(examples_dir, tmp_path):
     assert out.returncode == 2
     assert "table [[bodies]] #1 (plate), key 'mass'" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_modes_of_the_held_beam(examples_dir, tmp_path, capsys):
+    outdir = tmp_path / "modes"
+    code = main(["modes", str(examples_dir / "beam_lift.toml"), "-o", str(outdir)])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "contact bodies are held" in out and "f [Hz]" in out and "beam." in out
+    summary = json.loads((outdir / "modes.json").read_text())
+    freqs = np.array(summary["frequencies_hz"])
+    assert freqs.shape == (6,) and np.all(np.diff(freqs) >= 0) and freqs[0] > 0
+    assert (outdir / "modes.png").stat().st_size > 0

@@ -3,6 +3,8 @@
 import pathlib
 import re
 
+import numpy as np
+
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -40,3 +42,14 @@ def test_readme_images_and_commands_exist():
     commands = set(re.findall(r"^elasticoop (\w+)", shell, flags=re.M))
     known = set(build_parser()._subparsers._group_actions[0].choices)
     assert commands and commands <= known
+
+
+def test_readme_analysis_example_runs():
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    (block,) = [b for b in blocks if "static_equilibrium" in b]
+    namespace = {}
+    exec(compile(block, "README.md", "exec"), namespace)
+    assert namespace["traj"].reaction.shape == (51, 3, 6)
+    split = namespace["split"]
+    np.testing.assert_allclose(split.motion + split.internal, namespace["wrenches"])
+    assert np.all(np.diff(namespace["modes"].frequencies) >= 0)

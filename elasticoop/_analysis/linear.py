@@ -65,7 +65,9 @@ class LinearModel(eqx.Module):
         return flat.at[..., self.free].add(q).reshape(*q.shape[:-1], -1, 6)
 
 
-def linearize(model: AbstractElasticModel, y_eq, prescribed=None) -> LinearModel:
+def linearize(
+    model: AbstractElasticModel, y_eq, prescribed=None, body_names=None
+) -> LinearModel:
     """The linear model about `y_eq` with the `prescribed` coordinates fixed.
 
     `y_eq` should be a static equilibrium (see `static_equilibrium`); the linear
@@ -73,7 +75,8 @@ def linearize(model: AbstractElasticModel, y_eq, prescribed=None) -> LinearModel
     equilibrium the constant force imbalance is not part of the model.
 
     **Arguments:** the model, the configuration `(bodies, 6)`, and the bool
-    `(bodies, 6)` mask of prescribed coordinates (`None`: all free).
+    `(bodies, 6)` mask of prescribed coordinates (`None`: all free); `body_names`
+    name the coordinates in `LinearModel.names` (default `body0`, `body1`, ...).
     """
     n = model.n_bodies
     y_eq = jnp.asarray(as_float_array(y_eq, "y_eq", (n, 6)))
@@ -89,7 +92,7 @@ def linearize(model: AbstractElasticModel, y_eq, prescribed=None) -> LinearModel
     )
     index = np.ix_(free, free)
     B = jnp.eye(6 * n)[free]
-    names = coordinate_names(n, model.convention)
+    names = coordinate_names(n, model.convention, body_names)
     return LinearModel(
         M=0.5 * (M + M.T)[index],
         C=0.5 * (D + D.T)[index],

@@ -8,10 +8,10 @@ sub-command, write a module like `check.py` and list it in `COMMANDS`.
 import argparse
 import sys
 
-from . import check, demo, examples, run
+from . import check, demo, examples, modes, run
 from ._common import EXIT_USAGE, report_user_errors
 
-COMMANDS = (run, check, demo, examples)
+COMMANDS = (run, check, demo, examples, modes)
 
 
 def build_parser() -> argparse.ArgumentParser:

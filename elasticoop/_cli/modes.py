@@ -1,0 +1,83 @@
+"""`elasticoop modes SCENARIO`: static equilibrium, linearization and modes."""
+
+import json
+import pathlib
+
+import numpy as np
+
+from .._analysis import linearize, modes, plot_mode_shapes, static_equilibrium
+from .._forces import ConstantForce
+from ._common import EXIT_OK, common_options, load, say
+
+NAME = "modes"
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        NAME,
+        parents=[common_options()],
+        help="static equilibrium, natural frequencies and mode shapes",
+        description=(
+            "Find the static equilibrium of a scenario under gravity and its "
+            "constant contact forces, with the coordinates of its [prescribed] table "
+            "held at their initial values (without one: every coordinate of the "
+            "contact bodies is held), starting from the initial state; then "
+            "linearize there and print the natural frequencies, damping ratios and "
+            "dominant coordinates of the modes. With -o, also write modes.json and "
+            "a plot of the first mode shapes."
+        ),
+    )
+    parser.add_argument("scenario", metavar="SCENARIO", help="TOML scenario file")
+    parser.add_argument(
+        "-o", "--output", metavar="OUTDIR", help="write modes.json and modes.png here"
+    )
+    parser.add_argument(
+        "--count", type=int, default=4, help="mode shapes to plot (default 4)"
+    )
+    parser.set_defaults(func=execute)
+
+
+def execute(args) -> int:
+    scenario = load(args.scenario)
+    forces = None
+    if isinstance(scenario.forces, ConstantForce):
+        forces = np.asarray(scenario.forces.F)
+    elif scenario.forces is not None:
+        say(
+            args,
+            f"note: the scenario's {type(scenario.forces).__name__} forces are not "
+            "constant; the equilibrium is found without them",
+        )
+    if scenario.prescribed is not None:
+        mask = scenario.prescribed.mask
+    else:
+        mask = np.zeros((scenario.model.n_bodies, 6), bool)
+        mask[1:] = True
+        say(args, "no [prescribed] table: the contact bodies are held")
+    eq = static_equilibrium(scenario.model, scenario.y_init, mask, forces)
+    result = modes(linearize(scenario.model, eq.y, mask, scenario.names))
+    say(
+        args,
+        f"{args.scenario}: static equilibrium found in {eq.steps} iterations "
+        f"(largest force imbalance {float(eq.residual):.2e}); "
+        f"{'stable' if eq.stable else 'not stable'}",
+        result.table(),
+    )
+    if args.output:
+        out = pathlib.Path(args.output)
+        out.mkdir(parents=True, exist_ok=True)
+        summary = {
+            "scenario": scenario.name,
+            "equilibrium": np.asarray(eq.y).tolist(),
+            "frequencies_hz": result.frequencies_hz.tolist(),
+            "damping_ratios": [
+                None if np.isnan(z) else float(z) for z in result.damping_ratios
+            ],
+            "coordinates": list(result.names),
+            "shapes": result.shapes.tolist(),
+        }
+        (out / "modes.json").write_text(json.dumps(summary, indent=2))
+        fig = plot_mode_shapes(result, count=args.count)
+        fig.savefig(out / "modes.png", dpi=120)
+        say(args, f"wrote {out / 'modes.json'} and {out / 'modes.png'}")
+    return EXIT_OK
