@@ -9,6 +9,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from . import montecarlo as montecarlo  # noqa: E402
 from ._analysis import (  # noqa: E402
     AbstractMotion as AbstractMotion,
     Equilibrium as Equilibrium,

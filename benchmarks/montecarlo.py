@@ -1,0 +1,223 @@
+"""Monte Carlo throughput of `run_study` against a loop of SciPy `solve_ivp` runs.
+
+    python benchmarks/montecarlo.py [--quick] [--json results.json]
+
+Problem: the 3-body MobileModel (object + 2 grasps, 2 connections), 2 s simulated,
+rtol 1e-8, atol 1e-10, Tsit5, grasp stiffness log-normal (12 scalars, 20 % scatter),
+constant lift; kept per sample: peak elastic force per connection and final object
+pose error (21 output times). For each batch size B the study has B samples,
+integrated `B / devices` at a time on each device (one `vmap` batch per device; the
+host's cores are exposed as devices, so both cores of a 2-core machine work).
+
+Reported per B: trajectories per wall-second and simulated seconds per wall-second
+(after compilation, best of `repeats`), the compile time, and memory per sample
+(XLA's memory analysis of the compiled batch: arguments + outputs + temporaries,
+divided by B; and the `chunk_size_for` estimate). Side by side, the same samples
+integrated one by one by `scipy.integrate.solve_ivp` (RK45, same tolerances) over
+the NumPy right-hand side of `benchmarks/reference.py`; the loop is timed on a
+subset of samples and its time per trajectory extrapolated to B.
+"""
+
+import os
+import sys
+
+if "XLA_FLAGS" not in os.environ:
+    # one XLA device per core, so that a study shards over all of them
+    os.environ["XLA_FLAGS"] = (
+        f"--xla_force_host_platform_device_count={os.cpu_count() or 1}"
+    )
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import equinox as eqx  # noqa: E402
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+from jax.sharding import Mesh  # noqa: E402
+
+import elasticoop as eo  # noqa: E402
+from elasticoop import montecarlo as mc  # noqa: E402
+from elasticoop.montecarlo.execution import (  # noqa: E402
+    _global_array,
+    _run_batch,
+    working_memory_per_sample,
+)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import reference  # noqa: E402
+
+UP = (0.0, np.pi / 2, 0.0)
+T_END = 2.0
+
+
+def three_body_study(n_samples: int) -> mc.Study:
+    bodies = [
+        eo.RigidBody(2.0, (0.02, 0.15, 0.16)),
+        eo.RigidBody(0.3, (2e-3, 3e-3, 4e-3)),
+        eo.RigidBody(0.25, (1.5e-3, 2.5e-3, 3e-3)),
+    ]
+    damp = (3.0, 2.5, 2.0, 0.05, 0.04, 0.06)
+    conns = [
+        eo.Connection(0, i, stiffness=(800, 900, 1000, 20, 25, 30), damping=damp)
+        for i in (1, 2)
+    ]
+    y0 = np.array([[0, 0, 1, *UP], [-0.5, 0, 1, *UP], [0.5, 0, 1, *UP]])
+    model = eo.MobileModel(bodies, conns).with_unloaded_state(y0)
+    lift = np.zeros((2, 6))
+    lift[:, 2] = 12.0
+    return mc.Study(
+        model,
+        y0,
+        np.zeros_like(y0),
+        np.linspace(0.0, T_END, 21),
+        forces=lift,
+        parameters=[
+            mc.Parameter(
+                "stiffness",
+                lambda m: m.stiffness,
+                mc.LogNormal(0.0, 0.2),
+                relative=True,
+            )
+        ],
+        outputs={"peak_force": mc.peak_elastic_force(), "error": mc.final_pose_error()},
+        n_samples=n_samples,
+        key=0,
+        rtol=1e-8,
+        atol=1e-10,
+    )
+
+
+def _memory_per_sample(study, batch_width, devices):
+    mesh = Mesh(np.array(devices), ("samples",))
+    shape = (len(devices), batch_width)
+    index = _global_array(mesh, np.zeros(shape, np.int64))
+    strata = _global_array(mesh, np.zeros((*shape, 0), np.int32))
+    stats = _run_batch.lower(study, mesh, index, strata).compile().memory_analysis()
+    if stats is None:
+        return None
+    total = (
+        stats.argument_size_in_bytes
+        + stats.output_size_in_bytes
+        + stats.temp_size_in_bytes
+    )
+    return total / (batch_width * len(devices))
+
+
+def jax_throughput(batch: int, repeats: int) -> dict:
+    devices = jax.devices()
+    n_dev = min(len(devices), batch)
+    devices = devices[:n_dev]
+    width = -(-batch // n_dev)
+    study = three_body_study(batch)
+    run = lambda: mc.run_study(  # noqa: E731
+        study, chunk_size=batch, batch_width=width, devices=devices, progress=False
+    )
+    t0 = time.perf_counter()
+    ds = run()
+    first = time.perf_counter() - t0
+    times = []
+    # a long run is its own average: one repeat above 1000 samples
+    for _ in range(repeats if batch < 1000 else 1):
+        t0 = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - t0)
+    best = min(times)
+    summary = mc.summary(ds)
+    lanes = width * n_dev
+    return {
+        "batch": batch,
+        "devices": n_dev,
+        "batch_width": width,
+        "compile_and_first_run_s": first,
+        "run_s": best,
+        "trajectories_per_s": batch / best,
+        "simulated_s_per_wall_s": batch * T_END / best,
+        "failed": summary["n_failed"],
+        "memory_per_sample_bytes_xla": _memory_per_sample(study, width, devices),
+        "memory_per_sample_bytes_estimate": working_memory_per_sample(study),
+        "lanes": lanes,
+    }
+
+
+def scipy_per_trajectory(n: int) -> dict:
+    study = three_body_study(max(n, 1))
+    values = mc.sample_parameters(study, np.arange(n))
+    inputs = study.inputs
+    force = np.asarray(inputs.forces.F)
+    times = []
+    for s in range(n):
+        model = eqx.tree_at(lambda m: m.stiffness, inputs.model, values["stiffness"][s])
+        t0 = time.perf_counter()
+        reference.solve_ivp_mobile(
+            model,
+            np.asarray(inputs.y_init),
+            np.asarray(inputs.ydot_init),
+            study.ts,
+            force=force,
+            rtol=1e-8,
+            atol=1e-10,
+        )
+        times.append(time.perf_counter() - t0)
+    return {"samples_timed": n, "s_per_trajectory": float(np.mean(times))}
+
+
+def run(quick: bool) -> dict:
+    batches = (1, 16, 64) if quick else (1, 16, 256, 4096)
+    repeats = 1 if quick else 2
+    scipy = scipy_per_trajectory(2 if quick else 6)
+    rows = []
+    for batch in batches:
+        row = jax_throughput(batch, repeats)
+        loop_s = scipy["s_per_trajectory"] * batch
+        row["scipy_loop_s_extrapolated"] = loop_s
+        row["speedup_vs_scipy_loop"] = loop_s / row["run_s"]
+        rows.append(row)
+    return {
+        "problem": (
+            "3-body MobileModel (2 connections), 2 s simulated, rtol 1e-8, "
+            "atol 1e-10, Tsit5; 12 log-normal stiffness scalars; reductions kept"
+        ),
+        "device": f"{jax.devices()[0].platform} x {len(jax.devices())} "
+        f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores)",
+        "scipy": scipy,
+        "rows": rows,
+    }
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    result = run(args.quick)
+    print(result["problem"])
+    print("device:", result["device"])
+    print(
+        f"SciPy solve_ivp loop: {result['scipy']['s_per_trajectory'] * 1e3:.1f} ms "
+        f"per trajectory (mean of {result['scipy']['samples_timed']}), "
+        f"extrapolated linearly to each batch"
+    )
+    header = (
+        f"{'batch':>6} {'dev':>4} {'compile s':>10} {'run s':>8} {'traj/s':>9} "
+        f"{'sim-s/s':>9} {'loop s':>9} {'speedup':>8} {'MB/sample':>10}"
+    )
+    print(header)
+    for r in result["rows"]:
+        mem = r["memory_per_sample_bytes_xla"]
+        print(
+            f"{r['batch']:>6} {r['devices']:>4} {r['compile_and_first_run_s']:>10.2f} "
+            f"{r['run_s']:>8.3f} {r['trajectories_per_s']:>9.1f} "
+            f"{r['simulated_s_per_wall_s']:>9.1f} "
+            f"{r['scipy_loop_s_extrapolated']:>9.2f} "
+            f"{r['speedup_vs_scipy_loop']:>8.1f} "
+            f"{(mem or float('nan')) / 1e6:>10.3f}"
+        )
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()

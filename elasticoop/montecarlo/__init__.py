@@ -1,0 +1,40 @@
+"""Monte Carlo studies: sampling, batched execution, statistics, sensitivities."""
+
+from .distributions import (
+    AbstractDistribution as AbstractDistribution,
+    Custom as Custom,
+    LogNormal as LogNormal,
+    Normal as Normal,
+    TruncatedNormal as TruncatedNormal,
+    Uniform as Uniform,
+)
+from .execution import (
+    INVALID_SAMPLE as INVALID_SAMPLE,
+    chunk_size_for as chunk_size_for,
+    run_study as run_study,
+)
+from .outputs import (
+    Output as Output,
+    elastic_force as elastic_force,
+    final_pose_error as final_pose_error,
+    max_deflection as max_deflection,
+    object_pose as object_pose,
+    peak_elastic_force as peak_elastic_force,
+    trajectory as trajectory,
+)
+from .parameters import Parameter as Parameter
+from .sampling import lhs_strata as lhs_strata, sample_parameters as sample_parameters
+from .sensitivity import (
+    jacobian_name as jacobian_name,
+    local_sensitivities as local_sensitivities,
+    variance_ranking as variance_ranking,
+)
+from .stats import (
+    exceedance_probability as exceedance_probability,
+    statistics as statistics,
+    summary as summary,
+    valid_samples as valid_samples,
+    wilson_interval as wilson_interval,
+)
+from .store import open_study as open_study
+from .study import Study as Study

@@ -1,0 +1,106 @@
+"""What a study keeps of each simulated sample: trajectories or reductions.
+
+An `Output` is any function of one (un-batched) `Trajectory` returning an array of
+fixed shape, with names for its axes. A sample that stopped early has NaN after
+its stop, so reductions over time (max, final value) come out NaN for it; such
+samples are excluded from the statistics and counted in the summary.
+"""
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._models import MobileModel, deflection
+from .._trajectory import Trajectory
+
+COORDINATES = ("x", "y", "z", "a1", "a2", "a3")
+
+
+class Output(eqx.Module):
+    """A per-sample quantity `fn(trajectory) -> array` with axis names `dims`.
+
+    An axis named `"time"` is labelled with the study's output times. A bare
+    callable given to a study becomes `Output(fn)` with axes `name_0, name_1, ...`.
+    """
+
+    fn: Callable = eqx.field(static=True)
+    dims: tuple[str, ...] | None = eqx.field(static=True, default=None)
+
+    def __call__(self, traj: Trajectory) -> jax.Array:
+        return jnp.asarray(self.fn(traj), jnp.float64)
+
+
+def trajectory() -> Output:
+    """The full $Y(t)$ on the study's output times, shape `(time, body, coordinate)`
+    (choose a coarse `ts` to keep it small)."""
+    return Output(lambda traj: traj.y, ("time", "body", "coordinate"))
+
+
+def object_pose() -> Output:
+    """The object's coordinates $Y_0(t)$, shape `(time, coordinate)`."""
+    return Output(lambda traj: traj.y[:, 0], ("time", "coordinate"))
+
+
+def final_pose_error(reference=None) -> Output:
+    """$Y_0(t_1) - Y_{ref}$, the object's final pose error (three positions [m] and
+    three Euler angles [rad]), shape `(coordinate,)`. `reference` defaults to the
+    object's initial pose."""
+    ref = None if reference is None else jnp.asarray(reference, jnp.float64)
+
+    def error(traj):
+        target = traj.y[0, 0] if ref is None else ref
+        return traj.y[-1, 0] - target
+
+    return Output(error, ("coordinate",))
+
+
+def _elastic_force(traj: Trajectory) -> jax.Array:
+    """$|F_{ij}(t)|$, the norm of the force part of each connection's wrench."""
+    _require_mobile(traj.model, "elastic forces")
+    wrench = jax.vmap(traj.model.connection_wrench)(traj.y)
+    return _norm(wrench[..., :3])
+
+
+def elastic_force() -> Output:
+    """$|F_{ij}(t)|$ [N], the magnitude of each connection's elastic force on its
+    first body (the grasp load), shape `(time, connection)`."""
+    return Output(_elastic_force, ("time", "connection"))
+
+
+def peak_elastic_force() -> Output:
+    """$\\max_t |F_{ij}(t)|$ [N] per connection, shape `(connection,)`."""
+    return Output(lambda traj: jnp.max(_elastic_force(traj), axis=0), ("connection",))
+
+
+def max_deflection() -> Output:
+    """$\\max_t |\\delta_{ij}(t)|$ [m], the largest link deflection
+    $\\delta = (1 - \\rho_0/|r_i - r_j|)(r_i - r_j)$ per connection, shape
+    `(connection,)`."""
+
+    def peak(traj):
+        model = traj.model
+        _require_mobile(model, "link deflections")
+        d = traj.y[:, model.pairs[:, 0], :3] - traj.y[:, model.pairs[:, 1], :3]
+        per_link = jax.vmap(deflection, in_axes=(0, 0))
+        delta = jax.vmap(per_link, in_axes=(0, None))(d, model.rest_length)
+        return jnp.max(_norm(delta), axis=0)
+
+    return Output(peak, ("connection",))
+
+
+def _norm(v):
+    """$|v|$ over the last axis, with a finite derivative at $v = 0$ (the unloaded
+    state), where `sqrt` alone would give NaN tangents."""
+    sq = jnp.sum(v**2, axis=-1)
+    zero = sq == 0  # NaN (a sample after its early stop) stays NaN
+    return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, sq)))
+
+
+def _require_mobile(model, what):
+    if not isinstance(model, MobileModel):
+        raise ValueError(
+            f"{what} are defined per connection and need a MobileModel, got "
+            f"{type(model).__name__}"
+        )

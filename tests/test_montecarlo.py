@@ -1,0 +1,395 @@
+"""Monte Carlo studies: sampling, batched runs against single runs, statistics, the
+store, failures and sensitivities."""
+
+import json
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import xarray as xr
+from helpers import three_body_model, three_body_state
+
+import elasticoop as eo
+from elasticoop import montecarlo as mc
+
+# A batch and a single run differ only by floating-point rounding in the vmapped
+# solver (different vectorisation of the same operations).
+BATCH_VS_SINGLE_RTOL = 1e-12
+# Finite differences of a solve at rtol 1e-12 with relative step 1e-5: truncation
+# error ~1e-10, solver noise ~1e-12/1e-5 = 1e-7, both well below the target 1e-5.
+FD_STEP = 1e-5
+FD_RTOL = 1e-5
+
+BATCH_WIDTH = 4
+N_SAMPLES = 24
+TS = np.linspace(0.0, 0.3, 7)
+
+
+def _lift():
+    lift = np.zeros((2, 6))
+    lift[:, 2] = 3.0
+    return lift
+
+
+def _parameters():
+    return [
+        mc.Parameter(
+            "stiffness", lambda m: m.stiffness, mc.LogNormal(0.0, 0.3), relative=True
+        ),
+        mc.Parameter(
+            "mass",
+            lambda m: m.bodies.mass,
+            mc.TruncatedNormal((2.0, 0.3, 0.25), 0.05, low=(1.9, 0.2, 0.2)),
+        ),
+        mc.Parameter(
+            "load", None, mc.Uniform(0.5, 1.5), target="forces", relative=True
+        ),
+    ]
+
+
+def _outputs():
+    return {
+        "peak_force": mc.peak_elastic_force(),
+        "pose": mc.object_pose(),
+        "error": mc.final_pose_error(),
+        "deflection": mc.max_deflection(),
+    }
+
+
+def _study(parameters=None, n_samples=N_SAMPLES, key=7, **kwargs):
+    y0 = three_body_state()
+    return mc.Study(
+        three_body_model(),
+        y0,
+        np.zeros_like(y0),
+        TS,
+        forces=_lift(),
+        parameters=_parameters() if parameters is None else parameters,
+        outputs=_outputs(),
+        n_samples=n_samples,
+        key=key,
+        **kwargs,
+    )
+
+
+@pytest.fixture(scope="module")
+def study():
+    return _study()
+
+
+@pytest.fixture(scope="module")
+def results(study):
+    return mc.run_study(study, chunk_size=8, batch_width=BATCH_WIDTH, progress=False)
+
+
+@pytest.fixture(scope="module")
+def single_runs(study):
+    """A plain Python loop of `simulate` over the same parameter values."""
+    values = mc.sample_parameters(study)
+    model, y0 = study.inputs.model, study.inputs.y_init
+
+    @eqx.filter_jit
+    def run(k, mass, F):
+        m = eqx.tree_at(lambda m: (m.stiffness, m.bodies.mass), model, (k, mass))
+        traj = eo.simulate(m, y0, jnp.zeros_like(y0), TS, forces=F, throw=False)
+        return {name: out(traj) for name, out in study.outputs.items()}
+
+    runs = [
+        run(values["stiffness"][s], values["mass"][s], values["load"][s])
+        for s in range(study.n_samples)
+    ]
+    return {k: np.stack([np.asarray(r[k]) for r in runs]) for k in runs[0]}
+
+
+def test_batch_equals_loop_of_single_runs(results, single_runs):
+    assert mc.summary(results)["n_succeeded"] == N_SAMPLES
+    for name, expected in single_runs.items():
+        np.testing.assert_allclose(
+            results[name].values, expected, rtol=BATCH_VS_SINGLE_RTOL, atol=1e-15
+        )
+
+
+def test_statistics_equal_those_of_the_loop(results, single_runs):
+    q = (0.1, 0.5, 0.9)
+    for name in ("pose", "peak_force"):
+        stats = mc.statistics(results, name, quantiles=q)
+        x = single_runs[name]
+        tol = dict(rtol=BATCH_VS_SINGLE_RTOL, atol=1e-14)
+        np.testing.assert_allclose(stats["mean"].values, x.mean(0), **tol)
+        np.testing.assert_allclose(stats["std"].values, x.std(0, ddof=1), **tol)
+        np.testing.assert_allclose(
+            stats["quantiles"].values, np.quantile(x, q, axis=0), **tol
+        )
+        assert int(stats["n"]) == N_SAMPLES
+    # the band over time is labelled with the output times
+    np.testing.assert_array_equal(mc.statistics(results, "pose")["time"], TS)
+
+
+def test_exceedance_probability_with_wilson_interval(results, single_runs):
+    threshold = np.median(single_runs["peak_force"], axis=0)
+    p = mc.exceedance_probability(results, "peak_force", threshold, confidence=0.9)
+    k = (single_runs["peak_force"] > threshold).sum(0)
+    np.testing.assert_array_equal(p["probability"].values, k / N_SAMPLES)
+    # Wilson interval by hand: z = 1.6449 for 90 %
+    z, n = 1.6448536269514722, N_SAMPLES
+    ph = k / n
+    centre = (ph + z**2 / (2 * n)) / (1 + z**2 / n)
+    half = z / (1 + z**2 / n) * np.sqrt(ph * (1 - ph) / n + z**2 / (4 * n**2))
+    np.testing.assert_allclose(p["lower"].values, centre - half, rtol=1e-12)
+    np.testing.assert_allclose(p["upper"].values, centre + half, rtol=1e-12)
+    # zero exceedances: the upper bound is z^2 / (n + z^2), not 0
+    lo, hi = mc.wilson_interval(0, 10, 0.95)
+    assert lo == 0.0
+    np.testing.assert_allclose(hi, 1.959963984540054**2 / (10 + 1.959963984540054**2))
+
+
+def test_chunk_size_does_not_change_results(study, results):
+    other = mc.run_study(study, chunk_size=12, batch_width=BATCH_WIDTH, progress=False)
+    xr.testing.assert_identical(results.drop_attrs(), other.drop_attrs())
+
+
+def test_sampling_is_reproducible_and_per_sample(study):
+    values = mc.sample_parameters(study)
+    again = mc.sample_parameters(study, np.array([5, 3]))
+    for name in values:
+        np.testing.assert_array_equal(again[name], values[name][[5, 3]])
+    other_key = mc.sample_parameters(_study(key=8))
+    assert not np.array_equal(other_key["stiffness"], values["stiffness"])
+    # the drawn values follow their laws' supports and scalings
+    assert np.all(values["mass"] >= np.array([1.9, 0.2, 0.2]))
+    assert np.all(values["load"][:, :, 2] >= 0.5 * 3.0)
+    assert np.all(values["load"][:, :, 2] <= 1.5 * 3.0)
+    np.testing.assert_array_equal(values["load"][:, :, :2], 0.0)
+
+
+def test_latin_hypercube_hits_every_stratum_once():
+    n = 50
+    uniform = mc.Parameter("stiffness", lambda m: m.stiffness, mc.Uniform(0.0, 1.0))
+    lhs = _study([uniform], n_samples=n, sampling="lhs")
+    u = mc.sample_parameters(lhs)["stiffness"].reshape(n, -1)
+    strata = np.sort(np.floor(u * n).astype(int), axis=0)
+    np.testing.assert_array_equal(strata, np.repeat(np.arange(n)[:, None], 12, 1))
+    # a normal law through its inverse CDF: strata of equal probability
+    normal = mc.Parameter("stiffness", lambda m: m.stiffness, mc.Normal(1.0, 2.0))
+    x = mc.sample_parameters(_study([normal], n_samples=n, sampling="lhs"))
+    z = (x["stiffness"].reshape(n, -1) - 1.0) / 2.0
+    from scipy.stats import norm
+
+    strata = np.sort(np.floor(norm.cdf(z) * n).astype(int), axis=0)
+    np.testing.assert_array_equal(strata, np.repeat(np.arange(n)[:, None], 12, 1))
+
+
+def test_store_resume_and_loader(study, results, tmp_path):
+    store = tmp_path / "study"
+    ran = []
+    ds = mc.run_study(
+        study,
+        store,
+        chunk_size=8,
+        batch_width=BATCH_WIDTH,
+        progress=False,
+        on_chunk=ran.append,
+    )
+    assert ran == [0, 1, 2]
+    xr.testing.assert_identical(ds.drop_attrs(), results.drop_attrs())
+    manifest = json.loads((store / "manifest.json").read_text())
+    assert manifest["study"]["key"] == study.key_data.tolist()
+    # every chunk opens with plain NumPy
+    with np.load(store / "chunk-000001.npz") as chunk:
+        np.testing.assert_array_equal(chunk["sample"], np.arange(8, 16))
+    # a lost chunk and a half-written one: only the lost chunk is recomputed,
+    # the temporary file is never read and is cleaned up
+    (store / "chunk-000001.npz").unlink()
+    (store / ".chunk-000001.npz.999.tmp").write_bytes(b"PK\x03\x04 half")
+    partial = mc.open_study(store)
+    assert partial.attrs["complete"] == 0 and partial.sizes["sample"] == 16
+    ran.clear()
+    ds = mc.run_study(
+        study, store, batch_width=BATCH_WIDTH, progress=False, on_chunk=ran.append
+    )
+    assert ran == [1]
+    assert not list(store.glob(".*.tmp"))
+    xr.testing.assert_identical(mc.open_study(store), ds)
+    xr.testing.assert_identical(ds.drop_attrs(), results.drop_attrs())
+    # another study, or other settings, never mix into this store
+    with pytest.raises(ValueError, match="holds another study"):
+        mc.run_study(_study(key=8), store, batch_width=BATCH_WIDTH, progress=False)
+    with pytest.raises(ValueError, match="chunk_size = 4"):
+        mc.run_study(study, store, chunk_size=4, batch_width=BATCH_WIDTH)
+
+
+def test_failing_samples_are_counted_and_others_unaffected(results):
+    """Some samples start at gimbal lock, some draw a NaN: both are recorded,
+    the study goes on, and every other sample is bit-identical."""
+    y0 = np.asarray(three_body_state())
+
+    def initial_state(key):
+        u = jax.random.uniform(key)
+        theta = jnp.where(u < 0.25, 1e-4, np.pi / 2)  # below GIMBAL_TOL: locked
+        theta = jnp.where(u > 0.85, jnp.nan, theta)  # an invalid draw
+        return jnp.asarray(y0).at[0, 4].set(theta)
+
+    params = _parameters() + [
+        mc.Parameter("state", None, mc.Custom(initial_state), target="y_init")
+    ]
+    ds = mc.run_study(
+        _study(params), chunk_size=8, batch_width=BATCH_WIDTH, progress=False
+    )
+    theta = ds["state"].values[:, 0, 4]
+    locked, invalid = theta == 1e-4, np.isnan(theta)
+    assert locked.any() and invalid.any() and (~locked & ~invalid).any()
+    summary = mc.summary(ds)
+    assert summary["failures"] == {
+        "INVALID_SAMPLE": int(invalid.sum()),
+        "GIMBAL_LOCK": int(locked.sum()),
+    }
+    assert summary["n_succeeded"] == int((~locked & ~invalid).sum())
+    np.testing.assert_array_equal(ds["status"].values[locked], eo.Status.GIMBAL_LOCK)
+    assert np.all(np.isnan(ds["peak_force"].values[locked | invalid]))
+    ok = ~locked & ~invalid
+    for name in ("peak_force", "pose", "stiffness"):
+        np.testing.assert_array_equal(ds[name].values[ok], results[name].values[ok])
+    stats = mc.statistics(ds, "peak_force")
+    assert int(stats["n"]) == ok.sum()
+    conservative = mc.exceedance_probability(ds, "peak_force", 0.0, failures="exceed")
+    np.testing.assert_array_equal(conservative["probability"], 1.0)
+
+
+@pytest.mark.slow
+def test_sensitivities_match_finite_differences():
+    params = [
+        mc.Parameter(
+            "stiffness", lambda m: m.stiffness, mc.LogNormal(0.0, 0.2), relative=True
+        ),
+        mc.Parameter(
+            "mass", lambda m: m.bodies.mass, mc.Normal((2.0, 0.3, 0.25), 0.02)
+        ),
+    ]
+    y0 = three_body_state()
+    study = mc.Study(
+        three_body_model(),
+        y0,
+        np.zeros_like(y0),
+        np.linspace(0.0, 0.2, 5),
+        forces=_lift(),
+        parameters=params,
+        outputs={"error": mc.final_pose_error(), "deflection": mc.max_deflection()},
+        n_samples=2,
+        key=3,
+        rtol=1e-12,
+        atol=1e-14,
+    )
+    sens = mc.local_sensitivities(study, batch_width=2)
+    assert sens.sizes["sample"] == 2
+    values = mc.sample_parameters(study)
+
+    @jax.jit
+    def outputs(k, mass):
+        inputs = eqx.tree_at(
+            lambda i: (i.model.stiffness, i.model.bodies.mass), study.inputs, (k, mass)
+        )
+        traj = eo.simulate(
+            inputs.model,
+            inputs.y_init,
+            inputs.ydot_init,
+            study.ts,
+            forces=inputs.forces,
+            rtol=1e-12,
+            atol=1e-14,
+            throw=False,
+        )
+        return {name: out(traj) for name, out in study.outputs.items()}
+
+    s = 1
+    theta = {k: jnp.asarray(v[s]) for k, v in values.items()}
+    for p_name in ("stiffness", "mass"):
+        flat = theta[p_name].reshape(-1)
+        # every mass, and the six stiffness entries of connection 0
+        for j in range(min(flat.shape[0], 6)):
+            h = FD_STEP * float(flat[j])
+            plus, minus = dict(theta), dict(theta)
+            plus[p_name] = flat.at[j].add(h).reshape(theta[p_name].shape)
+            minus[p_name] = flat.at[j].add(-h).reshape(theta[p_name].shape)
+            up = outputs(plus["stiffness"], plus["mass"])
+            down = outputs(minus["stiffness"], minus["mass"])
+            for out in ("error", "deflection"):
+                fd = (np.asarray(up[out]) - np.asarray(down[out])) / (2 * h)
+                jac = sens[mc.jacobian_name(out, p_name)].values[s]
+                ad = jac.reshape(*jac.shape[: fd.ndim], -1)[..., j]
+                scale = np.max(np.abs(jac))
+                np.testing.assert_allclose(ad, fd, rtol=0, atol=FD_RTOL * scale)
+    ranking = mc.variance_ranking(sens, "deflection", connection=0)
+    np.testing.assert_allclose(float(ranking.sum()), 1.0, rtol=1e-12)
+    assert np.all(np.diff(ranking.values) <= 0)
+
+
+def test_variance_ranking_by_hand():
+    """y = 3 a + b with Var(a) = 1, Var(b) = 4: shares 9/13 and 4/13."""
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(0, 1, 400), rng.normal(0, 2, 400)
+    ds = xr.Dataset(
+        {
+            "status": ("sample", np.zeros(400, np.int32)),
+            "a": ("sample", a),
+            "b": ("sample", b),
+            "y": ("sample", 3 * a + b),
+            "d_y_d_a": ("sample", np.full(400, 3.0)),
+            "d_y_d_b": ("sample", np.ones(400)),
+        }
+    )
+    ranking = mc.variance_ranking(ds, "y")
+    assert list(ranking["parameter"].values) == ["a", "b"]
+    va, vb = 9 * a.var(ddof=1), b.var(ddof=1)
+    np.testing.assert_allclose(ranking.values, [va / (va + vb), vb / (va + vb)])
+    np.testing.assert_allclose(
+        ranking.attrs["sample_variance"], (3 * a + b).var(ddof=1)
+    )
+
+
+def test_chunk_size_from_memory_budget(study):
+    size = mc.chunk_size_for(study, 2**20, batch_width=4)
+    assert size % 4 == 0 and 4 <= size <= N_SAMPLES
+    assert mc.chunk_size_for(study, 2**30, 4, n_devices=2) == N_SAMPLES
+    with pytest.raises(ValueError, match="memory_budget"):
+        mc.chunk_size_for(study, 10_000, batch_width=64)
+
+
+BAD = {
+    "where not a leaf": (
+        lambda: _study(
+            [mc.Parameter("m0", lambda m: m.bodies.mass[0], mc.Uniform(1, 2))]
+        ),
+        "whole leaf",
+    ),
+    "shape mismatch": (
+        lambda: _study(
+            [mc.Parameter("k", lambda m: m.stiffness, mc.Normal(np.ones(5), 1.0))]
+        ),
+        "leaf's shape",
+    ),
+    "lhs custom": (
+        lambda: _study(
+            [mc.Parameter("k", lambda m: m.stiffness, mc.Custom(lambda key: 1.0))],
+            sampling="lhs",
+        ),
+        "no inverse CDF",
+    ),
+    "negative std": (lambda: mc.Normal(0.0, -1.0), "Normal.std must be >= 0"),
+    "uniform bounds": (lambda: mc.Uniform(2.0, 1.0), "high >= low"),
+    "duplicate name": (lambda: _study(_parameters()[:1] * 2), "used twice"),
+    "bad target": (
+        lambda: mc.Parameter("k", None, mc.Uniform(0, 1), target="gravity"),
+        "target must be one of",
+    ),
+    "n_samples": (lambda: _study(n_samples=0), "n_samples must be >= 1"),
+    "sampling": (lambda: _study(sampling="sobol"), "sampling must be one of"),
+}
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_is_named(case):
+    make, match = BAD[case]
+    with pytest.raises(ValueError, match=match):
+        make()
