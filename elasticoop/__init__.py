@@ -39,6 +39,19 @@ from ._forces import (  # noqa: E402
     SampledForce as SampledForce,
     generalized_wrench as generalized_wrench,
 )
+from ._identify import (  # noqa: E402
+    AbstractTransform as AbstractTransform,
+    Bounded as Bounded,
+    Experiment as Experiment,
+    IdentificationResult as IdentificationResult,
+    Log as Log,
+    ParameterRow as ParameterRow,
+    Softplus as Softplus,
+    equation_error as equation_error,
+    gauss_newton_uncertainty as gauss_newton_uncertainty,
+    identify as identify,
+    savitzky_golay as savitzky_golay,
+)
 from ._lagrange import (  # noqa: E402
     accelerations as accelerations,
     damping_forces as damping_forces,

@@ -1,0 +1,90 @@
+"""A smoothing differentiator: Savitzky-Golay (local least-squares polynomial) fits.
+
+At each sample $t_k$ a polynomial of degree `polyorder` is fitted by least squares
+to the `window` samples centred on $t_k$ (uniform spacing $h$), and its value and
+derivatives at $t_k$ are taken as the estimates. The estimate is a fixed linear
+filter of the samples (Savitzky & Golay, Anal. Chem. 36 (1964) 1627): it
+differentiates polynomials of degree <= `polyorder` exactly and smooths away
+noise at frequencies well above the window's reciprocal length, so the window
+should span clearly less than one period of the fastest mode in the data.
+Near the ends the polynomial fitted to the first (last) `window` samples is
+evaluated off-centre (as `scipy.signal.savgol_filter(mode="interp")` does).
+"""
+
+import math
+
+import numpy as np
+
+
+def savitzky_golay(
+    values, ts, window: int = 21, polyorder: int = 4, derivs=(0, 1, 2)
+) -> tuple:
+    """Smoothed values and derivatives of uniformly sampled data.
+
+    **Arguments:**
+
+    - `values`: samples, shape `(times, ...)`; NaN samples make the estimates whose
+      window contains them NaN.
+    - `ts`: uniformly spaced sample times, shape `(times,)`.
+    - `window`: odd number of samples in each local fit (> `polyorder`).
+    - `polyorder`: degree of the local polynomial (>= the highest derivative).
+    - `derivs`: which derivatives to return (0 = smoothed values).
+
+    **Returns:** a tuple with one array shaped like `values` per entry of `derivs`.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    ts = np.asarray(ts, dtype=np.float64)
+    n = ts.shape[0]
+    if values.shape[:1] != (n,):
+        raise ValueError(
+            f"values must have {n} samples along axis 0 like ts, got shape "
+            f"{values.shape}"
+        )
+    if not (isinstance(window, int) and window % 2 == 1 and window >= 3):
+        raise ValueError(f"window must be an odd integer >= 3, got {window!r}")
+    if not (isinstance(polyorder, int) and 0 <= polyorder < window):
+        raise ValueError(
+            f"polyorder must be an integer in [0, window), got {polyorder!r}"
+        )
+    if max(derivs) > polyorder:
+        raise ValueError(
+            f"polyorder = {polyorder} cannot estimate derivative {max(derivs)}"
+        )
+    if n < window:
+        raise ValueError(
+            f"the smoothing window ({window} samples) is longer than the data "
+            f"({n} samples): choose a smaller window"
+        )
+    h = np.diff(ts)
+    step = float(np.mean(h))
+    if np.max(np.abs(h - step)) > 1e-6 * step:
+        raise ValueError(
+            "the smoothing differentiator needs uniformly spaced samples ts; "
+            "resample the data or pass measured ydot/yddot"
+        )
+    half = window // 2
+    offsets = np.arange(-half, half + 1, dtype=np.float64)
+    # Local polynomial in s = (t - t_centre) / h: coefficients c = pinv(V) @ window.
+    vander = offsets[:, None] ** np.arange(polyorder + 1)[None, :]
+    pinv = np.linalg.pinv(vander)  # (polyorder + 1, window)
+    flat = values.reshape(n, -1)
+    out = []
+    for d in derivs:
+        # d-th derivative at offset s of sum_j c_j s^j, in units of 1/h^d
+        def weights(s):
+            j = np.arange(polyorder + 1)
+            falling = np.array([math.perm(int(k), d) for k in j], dtype=np.float64)
+            powers = np.where(j >= d, s ** np.maximum(j - d, 0), 0.0)
+            return (falling * powers) @ pinv / step**d
+
+        centre = weights(0.0)
+        result = np.empty_like(flat)
+        # interior: a correlation with the centre weights
+        windows = np.lib.stride_tricks.sliding_window_view(flat, window, axis=0)
+        result[half : n - half] = windows @ centre
+        # ends: evaluate the first / last window's polynomial off-centre
+        for k in range(half):
+            result[k] = weights(float(k - half)) @ flat[:window]
+            result[n - 1 - k] = weights(float(half - k)) @ flat[n - window :]
+        out.append(result.reshape(values.shape))
+    return tuple(out)

@@ -1,0 +1,109 @@
+"""Equation-error estimate: one linear least-squares problem, no simulation.
+
+Lagrange's equations, read as a residual of the measured motion,
+$$e(p; t_k) = W(Y)\\ddot Y + w(Y, \\dot Y; p) - G - F$$
+(zero for the true $p$),
+are *affine* in the stiffness and damping parameters ($\\Pi$ and $R$ are linear in
+them) and in the masses and inertias ($T$ and the gravity potential are linear in
+them). So with $e_0 = e(p_0)$ and $A = \\partial e/\\partial p$ (both by autodiff of
+`inverse_dynamics`, i.e. of $T$, $\\Pi$ and $R$) the minimiser of $\\sum_k |e|^2$ is
+$p = p_0 - A^+ e_0$: one linear least-squares solve (a Gauss-Newton step for a
+parameter that enters non-linearly). The columns are scaled by $|p_0|$ first.
+
+$\\dot Y$ and $\\ddot Y$ are taken from the experiment when measured, otherwise
+estimated by the Savitzky-Golay smoothing differentiator (`savitzky_golay`), which
+then also supplies the smoothed $Y$. Samples whose window holds a missing value are
+left out.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._forces import pad_to_bodies
+from .._lagrange import inverse_dynamics
+from .differentiate import savitzky_golay
+from .experiment import Experiment, check_experiments
+from .parameters import FreeParameters, free_parameters
+
+
+def motion_estimates(e: Experiment, window: int = 21, polyorder: int = 4):
+    """$Y$, $\\dot Y$, $\\ddot Y$ at the sample times of `e`: measured ones where
+    given, otherwise from the Savitzky-Golay differentiator."""
+    y = np.asarray(e.y)
+    if e.ydot is not None and e.yddot is not None:
+        return y, np.asarray(e.ydot), np.asarray(e.yddot)
+    smooth, dy, ddy = savitzky_golay(y, e.ts, window, polyorder, derivs=(0, 1, 2))
+    if e.ydot is not None:
+        dy = np.asarray(e.ydot)
+        (ddy,) = savitzky_golay(dy, e.ts, window, polyorder, derivs=(1,))
+    if e.yddot is not None:
+        ddy = np.asarray(e.yddot)
+    return smooth, dy, ddy
+
+
+@eqx.filter_jit
+def _affine_system(model, free: FreeParameters, p0, ts, y, ydot, yddot, force):
+    def residual(p):
+        fitted = free.apply(model, p)
+
+        def one(t, q, v, a):
+            applied = jnp.zeros_like(q)
+            if force is not None:
+                applied = pad_to_bodies(force(t, q, v), q.shape[0])
+            return inverse_dynamics(fitted, q, v, a) - applied
+
+        return jax.vmap(one)(ts, y, ydot, yddot).reshape(-1)
+
+    e0 = residual(p0)
+    return e0, jax.jacfwd(residual)(p0)
+
+
+def equation_error(model, experiments, where, *, window: int = 21, polyorder: int = 4):
+    """Estimate the free parameters by equation error (see the module docstring).
+
+    **Arguments:**
+
+    - `model`: the model; its values of the free leaves are the point $p_0$ the
+      (affine) residual is expanded about, and the values of all other leaves are
+      taken as known.
+    - `experiments`: an `Experiment` or a sequence of them.
+    - `where`: selects the free leaves, e.g. `lambda m: (m.stiffness, m.damping)`.
+    - `window`, `polyorder`: the Savitzky-Golay window (odd number of samples) and
+      polynomial degree, used where $\\dot Y$ or $\\ddot Y$ were not measured.
+
+    **Returns:** `model` with the free leaves set to the least-squares estimate.
+    With noisy data an estimate may leave the physical range (e.g. a negative
+    damping); `identify` then starts that entry from the value in `model`.
+    """
+    experiments = check_experiments(model, experiments)
+    free = free_parameters(model, where, "identity")
+    p0 = jnp.asarray(free.current(model))
+    blocks, rhs = [], []
+    for k, e in enumerate(experiments):
+        y, ydot, yddot = motion_estimates(e, window, polyorder)
+        keep = np.all(np.isfinite(y) & np.isfinite(ydot) & np.isfinite(yddot), (1, 2))
+        if not np.any(keep):
+            raise ValueError(
+                f"experiments[{k}] has no sample where the motion and its "
+                f"derivatives are known (too many missing samples for the "
+                f"smoothing window of {window})"
+            )
+        e0, A = _affine_system(
+            model,
+            free,
+            p0,
+            jnp.asarray(np.asarray(e.ts)[keep]),
+            jnp.asarray(y[keep]),
+            jnp.asarray(ydot[keep]),
+            jnp.asarray(yddot[keep]),
+            e.forces,
+        )
+        blocks.append(np.asarray(A))
+        rhs.append(np.asarray(e0))
+    A, e0 = np.concatenate(blocks), np.concatenate(rhs)
+    scale = np.where(np.asarray(p0) != 0, np.abs(np.asarray(p0)), 1.0)
+    step, *_ = np.linalg.lstsq(A * scale[None, :], e0, rcond=None)
+    p = np.asarray(p0) - scale * step
+    return free.apply(model, jnp.asarray(p))

@@ -1,0 +1,237 @@
+"""`Experiment`: one recorded motion (data), validated, and batched for `vmap`."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._forces import AbstractForce, SampledForce, as_force, check_force_shape
+
+
+class Experiment(eqx.Module):
+    """One recorded motion of the elastic system, the data of an identification.
+
+    **Arguments:**
+
+    - `ts`: sample times [s], strictly increasing, shape `(times,)`.
+    - `y`: measured $Y(t)$, shape `(times, bodies, 6)`; NaN marks a missing sample.
+    - `y_init`, `ydot_init`: the initial state $Y(t_0)$, $\\dot Y(t_0)$ the
+      simulation starts from, shape `(bodies, 6)` (known, not fitted).
+    - `forces`: the applied forces, as accepted by `simulate` (`None`, an array
+      `(m, 6)`, a `ConstantForce`, `SampledForce` or a callable).
+    - `sigma`: noise level (standard deviation) of `y`: a scalar, one value per
+      coordinate `(6,)` or per body and coordinate `(bodies, 6)`. Residuals are
+      divided by it. `None` weights every coordinate by 1 and lets the fit estimate
+      one common noise variance from the residuals.
+    - `ydot`: optional measured $\\dot Y(t)$, shape `(times, bodies, 6)` (NaN =
+      missing); fitted too when given (output error) and used instead of a smoothed
+      derivative by the equation-error initialiser.
+    - `sigma_ydot`: noise level of `ydot`, shaped like `sigma` (required with
+      `ydot` when `sigma` is given).
+    - `yddot`: optional measured $\\ddot Y(t)$ (used only by the equation-error
+      initialiser).
+
+    Bad data (wrong shapes, a time grid that does not match `y`, a body coordinate
+    that is NaN in every sample, non-positive `sigma`) raises `ValueError`.
+    """
+
+    ts: jax.Array
+    y: jax.Array
+    y_init: jax.Array
+    ydot_init: jax.Array
+    forces: AbstractForce | None
+    sigma: jax.Array | None
+    ydot: jax.Array | None
+    sigma_ydot: jax.Array | None
+    yddot: jax.Array | None
+
+    def __init__(
+        self,
+        ts,
+        y,
+        y_init,
+        ydot_init,
+        forces=None,
+        sigma=None,
+        *,
+        ydot=None,
+        sigma_ydot=None,
+        yddot=None,
+    ):
+        ts = _array(ts, "Experiment.ts")
+        if ts.ndim != 1 or ts.shape[0] < 2:
+            raise ValueError(
+                f"Experiment.ts must be a 1-D array of at least 2 times, got shape "
+                f"{ts.shape}"
+            )
+        if not np.all(np.isfinite(ts)):
+            raise ValueError("Experiment.ts must be finite")
+        if not np.all(np.diff(ts) > 0):
+            k = int(np.argmin(np.diff(ts)))
+            raise ValueError(
+                f"Experiment.ts must be strictly increasing, but ts[{k}] = {ts[k]} "
+                f">= ts[{k + 1}] = {ts[k + 1]}"
+            )
+        n_times = ts.shape[0]
+        y = _series(y, "Experiment.y", n_times)
+        n_bodies = y.shape[1]
+        y_init = _state(y_init, "Experiment.y_init", n_bodies)
+        ydot_init = _state(ydot_init, "Experiment.ydot_init", n_bodies)
+        if ydot is not None:
+            ydot = _series(ydot, "Experiment.ydot", n_times, n_bodies)
+        if yddot is not None:
+            yddot = _series(yddot, "Experiment.yddot", n_times, n_bodies, nan_ok=False)
+        if sigma is not None:
+            sigma = _sigma(sigma, "Experiment.sigma", n_bodies)
+        if sigma_ydot is not None:
+            if ydot is None:
+                raise ValueError("Experiment.sigma_ydot was given without ydot")
+            sigma_ydot = _sigma(sigma_ydot, "Experiment.sigma_ydot", n_bodies)
+        elif ydot is not None and sigma is not None:
+            raise ValueError(
+                "Experiment.sigma_ydot is required when both sigma and ydot are given"
+            )
+        force = as_force(forces)
+        if force is not None:
+            shape = jax.eval_shape(
+                force, jnp.asarray(ts[0]), jnp.asarray(y_init), jnp.asarray(ydot_init)
+            ).shape
+            check_force_shape(shape, n_bodies)
+            if isinstance(force, SampledForce):
+                lo, hi = float(force.ts[0]), float(force.ts[-1])
+                if ts[0] < lo or ts[-1] > hi:
+                    raise ValueError(
+                        f"Experiment.ts spans [{ts[0]}, {ts[-1]}] s but the "
+                        f"SampledForce samples cover only [{lo}, {hi}] s"
+                    )
+        self.ts = jnp.asarray(ts)
+        self.y = jnp.asarray(y)
+        self.y_init = jnp.asarray(y_init)
+        self.ydot_init = jnp.asarray(ydot_init)
+        self.forces = force
+        self.sigma = None if sigma is None else jnp.asarray(sigma)
+        self.ydot = None if ydot is None else jnp.asarray(ydot)
+        self.sigma_ydot = None if sigma_ydot is None else jnp.asarray(sigma_ydot)
+        self.yddot = None if yddot is None else jnp.asarray(yddot)
+
+    @property
+    def n_bodies(self) -> int:
+        return int(self.y.shape[-2])
+
+    @property
+    def n_samples(self) -> int:
+        """Number of measured (non-NaN) values in `y` and `ydot`."""
+        n = int(np.sum(np.isfinite(np.asarray(self.y))))
+        if self.ydot is not None:
+            n += int(np.sum(np.isfinite(np.asarray(self.ydot))))
+        return n
+
+
+def _array(value, name):
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of numbers, got {value!r}") from None
+
+
+def _series(value, name, n_times, n_bodies=None, nan_ok=True):
+    arr = _array(value, name)
+    if arr.ndim != 3 or arr.shape[2] != 6:
+        raise ValueError(
+            f"{name} must have shape (times, bodies, 6), got shape {arr.shape}"
+        )
+    if arr.shape[0] != n_times:
+        raise ValueError(
+            f"{name} has {arr.shape[0]} samples but Experiment.ts has {n_times} "
+            f"times (the time grids do not match)"
+        )
+    if n_bodies is not None and arr.shape[1] != n_bodies:
+        raise ValueError(
+            f"{name} has {arr.shape[1]} bodies but Experiment.y has {n_bodies}"
+        )
+    if np.any(np.isinf(arr)):
+        raise ValueError(f"{name} must not contain inf (use NaN for missing samples)")
+    missing = np.all(np.isnan(arr), axis=0)
+    if not nan_ok and np.any(np.isnan(arr)):
+        raise ValueError(f"{name} must not contain NaN")
+    if np.any(missing):
+        body, coord = (int(k) for k in np.argwhere(missing)[0])
+        raise ValueError(
+            f"{name}[:, {body}, {coord}] is NaN in every sample: body {body}, "
+            f"coordinate {coord} has no data (give NaN only for missing samples)"
+        )
+    return arr
+
+
+def _state(value, name, n_bodies):
+    arr = _array(value, name)
+    if arr.shape != (n_bodies, 6):
+        raise ValueError(
+            f"{name} must have shape ({n_bodies}, 6) like one sample of "
+            f"Experiment.y, got shape {arr.shape}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    return arr
+
+
+def _sigma(value, name, n_bodies):
+    arr = _array(value, name)
+    if arr.shape not in ((), (6,), (n_bodies, 6)):
+        raise ValueError(
+            f"{name} must be a scalar, shape (6,) or ({n_bodies}, 6), got shape "
+            f"{arr.shape}"
+        )
+    if not np.all(np.isfinite(arr) & (arr > 0)):
+        raise ValueError(f"{name} must be positive and finite, got {arr}")
+    return np.broadcast_to(arr, (n_bodies, 6)).copy()
+
+
+def check_experiments(model, experiments) -> list[Experiment]:
+    """Validate a sequence of experiments against `model` (bodies, uniform
+    weighting) and return them as a list."""
+    if isinstance(experiments, Experiment):
+        experiments = [experiments]
+    experiments = list(experiments)
+    if not experiments:
+        raise ValueError("experiments must hold at least one Experiment")
+    for k, e in enumerate(experiments):
+        if not isinstance(e, Experiment):
+            raise ValueError(
+                f"experiments[{k}] must be an Experiment, got {type(e).__name__}"
+            )
+        if e.n_bodies != model.n_bodies:
+            raise ValueError(
+                f"experiments[{k}].y has {e.n_bodies} bodies but the model has "
+                f"{model.n_bodies}"
+            )
+    given = {e.sigma is not None for e in experiments}
+    if len(given) > 1:
+        raise ValueError(
+            "give sigma for every experiment or for none (the noise level is "
+            "either known everywhere or estimated from the residuals)"
+        )
+    return experiments
+
+
+def _signature(e: Experiment):
+    leaves, treedef = jax.tree.flatten(e)
+    return treedef, tuple((x.shape, x.dtype) for x in leaves)
+
+
+def batch_experiments(experiments) -> list[tuple[list[int], Experiment]]:
+    """Group experiments of equal shapes and stack each group along a new leading
+    axis, so that a group is simulated by one `vmap`-ed call.
+
+    **Returns:** a list of `(indices, stacked)`, `indices` naming the experiments
+    of the group in input order.
+    """
+    groups: dict = {}
+    for k, e in enumerate(experiments):
+        groups.setdefault(_signature(e), []).append(k)
+    out = []
+    for indices in groups.values():
+        members = [experiments[k] for k in indices]
+        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *members)
+        out.append((indices, stacked))
+    return out

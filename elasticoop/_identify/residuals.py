@@ -1,0 +1,181 @@
+"""Output error: weighted residuals of simulated against measured trajectories.
+
+For experiment $e$, sample $k$, body $i$ and coordinate $c$,
+$$r_{eki c}(u) = \\frac{Y^{\\rm sim}_{ic}(t_k; p(u)) - Y^{\\rm data}_{ekic}}
+{\\sigma_{eic}}$$
+(and likewise for $\\dot Y$ when it was measured), zero for missing (NaN) samples.
+The loss is $\\tfrac12 \\sum r^2$. Experiments of equal shapes are simulated by one
+`vmap`-ed call of `simulate`.
+
+A simulation that stops early (gimbal lock, a collapsed link, solver failure) or
+produces non-finite values gives residuals $+\\infty$ for its experiment: the loss
+of that trial point is infinite, so a line search or trust region rejects it and
+shortens the step instead of failing.
+"""
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._simulate import simulate
+from .experiment import Experiment, batch_experiments
+from .parameters import FreeParameters
+
+
+class _Data(eqx.Module):
+    """One batch of experiments of equal shapes, with NaN-free data and weights."""
+
+    experiments: Experiment  # stacked along a leading batch axis
+    y: jax.Array  # NaN replaced by 0
+    y_weight: jax.Array  # 1/sigma where measured, 0 where missing
+    ydot: jax.Array | None
+    ydot_weight: jax.Array | None
+
+
+def _prepare(stacked: Experiment) -> _Data:
+    def clean(values, sigma):
+        values = np.asarray(values)
+        measured = np.isfinite(values)
+        inv = 1.0 if sigma is None else 1.0 / np.asarray(sigma)[:, None]
+        weight = measured * inv
+        return jnp.asarray(np.where(measured, values, 0.0)), jnp.asarray(weight)
+
+    y, yw = clean(stacked.y, stacked.sigma)
+    ydot = ydw = None
+    if stacked.ydot is not None:
+        ydot, ydw = clean(stacked.ydot, stacked.sigma_ydot)
+    return _Data(stacked, y, yw, ydot, ydw)
+
+
+class SimulationOptions(eqx.Module):
+    """Options handed to `simulate` for every simulation of a fit."""
+
+    solver: diffrax.AbstractSolver | None = None
+    rtol: float = eqx.field(static=True, default=1e-8)
+    atol: float = eqx.field(static=True, default=1e-10)
+    max_steps: int = eqx.field(static=True, default=100_000)
+    gimbal_tol: float = eqx.field(static=True, default=1e-3)
+    link_tol: float = eqx.field(static=True, default=1e-3)
+
+
+class Problem(eqx.Module):
+    """Everything the residuals depend on besides $u$ (a pytree; no closures)."""
+
+    model: eqx.Module
+    free: FreeParameters
+    batches: tuple[_Data, ...]
+    order: tuple[int, ...] = eqx.field(static=True)  # experiment index per row
+    options: SimulationOptions
+    scale: jax.Array  # a constant factor on all residuals (solver conditioning)
+    u_offset: jax.Array  # u = u_offset + u_scale * v, v the solver's variables
+    u_scale: jax.Array
+
+
+def make_problem(model, free, experiments, options) -> Problem:
+    groups = batch_experiments(experiments)
+    order = tuple(k for indices, _ in groups for k in indices)
+    batches = tuple(_prepare(stacked) for _, stacked in groups)
+    one, zeros = jnp.asarray(1.0), jnp.zeros(free.size)
+    return Problem(model, free, batches, order, options, one, zeros, zeros + 1.0)
+
+
+def with_scaling(problem: Problem, scale, u_offset, u_scale) -> Problem:
+    """The same problem with residuals multiplied by `scale` and the solver's
+    variables $v$ mapped to $u = $ `u_offset + u_scale * v` (traced values: no
+    recompilation)."""
+    values = (scale, u_offset, u_scale)
+    return eqx.tree_at(
+        lambda p: (p.scale, p.u_offset, p.u_scale),
+        problem,
+        tuple(jnp.asarray(x, jnp.float64) for x in values),
+    )
+
+
+def _simulate_batch(model, data: _Data, options: SimulationOptions, adjoint):
+    def one(e: Experiment):
+        return simulate(
+            model,
+            e.y_init,
+            e.ydot_init,
+            e.ts,
+            forces=e.forces,
+            solver=options.solver,
+            rtol=options.rtol,
+            atol=options.atol,
+            max_steps=options.max_steps,
+            adjoint=adjoint,
+            throw=False,
+            gimbal_tol=options.gimbal_tol,
+            link_tol=options.link_tol,
+        )
+
+    return jax.vmap(one)(data.experiments)
+
+
+def residuals_by_experiment(u, problem: Problem, adjoint=None):
+    """Residuals per batch, each `(batch, times, bodies, 6)` (or twice that length
+    along the last axis with measured $\\dot Y$), and whether each simulation
+    succeeded, `(experiments,)` in batch order."""
+    model = problem.free.apply(problem.model, u)
+    out, ok_all = [], []
+    for data in problem.batches:
+        traj = _simulate_batch(model, data, problem.options, adjoint)
+        r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
+        if data.ydot is not None:
+            rd = jnp.where(
+                data.ydot_weight > 0, (traj.ydot - data.ydot) * data.ydot_weight, 0.0
+            )
+            r = jnp.concatenate([r, rd], axis=-1)
+        ok = (traj.status == 0) & jnp.all(jnp.isfinite(r), axis=(1, 2, 3))
+        r = jnp.where(ok[:, None, None, None], problem.scale * r, jnp.inf)
+        out.append(r)
+        ok_all.append(ok)
+    return out, jnp.concatenate(ok_all)
+
+
+def residuals(u, problem: Problem, adjoint=None) -> jax.Array:
+    """All residuals as one flat vector ($+\\infty$ for failed simulations)."""
+    parts, _ = residuals_by_experiment(u, problem, adjoint)
+    return jnp.concatenate([r.reshape(-1) for r in parts])
+
+
+def loss(u, problem: Problem) -> jax.Array:
+    """$\\tfrac12\\sum r^2$, differentiable in reverse mode (diffrax's default
+    `RecursiveCheckpointAdjoint`)."""
+    r = residuals(u, problem)
+    return 0.5 * jnp.sum(r**2)
+
+
+def residuals_and_jacobian(u, problem: Problem):
+    """$r(u)$ and $J = \\partial r/\\partial u$ by forward-mode sensitivities
+    (`jax.jacfwd` through `simulate` with `diffrax.ForwardMode()`): one integration
+    carrying one tangent per free parameter. Rows of failed simulations are zero in
+    $J$ (and $+\\infty$ in $r$)."""
+
+    def fn(v):
+        r = residuals(v, problem, diffrax.ForwardMode())
+        return r, r
+
+    J, r = jax.jacfwd(fn, has_aux=True)(u)
+    J = jnp.where(jnp.isfinite(r)[:, None], J, 0.0)
+    return r, J
+
+
+@eqx.filter_custom_jvp
+def residuals_fwd(u, *, problem: Problem):
+    """`residuals` whose JVP is the forward-mode Jacobian from
+    `residuals_and_jacobian`: `jax.linearize` of it (as Gauss-Newton solvers do)
+    integrates the sensitivities once and keeps $J$, so the linearised map is a
+    cheap, transposable matrix product."""
+    return residuals(u, problem)
+
+
+@residuals_fwd.def_jvp
+def _residuals_fwd_jvp(primals, tangents, *, problem):
+    (u,), (du,) = primals, tangents
+    r, J = residuals_and_jacobian(u, problem)
+    if du is None:
+        return r, jnp.zeros_like(r)
+    return r, J @ du

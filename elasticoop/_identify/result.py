@@ -1,0 +1,145 @@
+"""`IdentificationResult`: the fitted model, its uncertainty and how the fit went."""
+
+import dataclasses
+
+import numpy as np
+
+from .uncertainty import Uncertainty
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterRow:
+    """One row of the parameter table (physical units)."""
+
+    name: str
+    estimate: float
+    stderr: float
+    initial: float
+    start: float
+    identifiable: bool
+
+    @property
+    def relative_stderr(self) -> float:
+        return self.stderr / abs(self.estimate) if self.estimate != 0 else np.inf
+
+
+@dataclasses.dataclass(frozen=True)
+class IdentificationResult:
+    """The outcome of `identify`.
+
+    **Fields:**
+
+    - `model`: the fitted model.
+    - `stderr`: standard errors, in the structure of `where(model)` (inf for a
+      parameter the data cannot determine).
+    - `loss_history`: loss $\\tfrac12\\sum r^2$ after each accepted iteration.
+    - `converged`: whether the convergence test was met.
+    - `status`: `"converged"`, `"max_steps"`, `"stalled"` or `"failed"`; `reason`
+      says why in words.
+    - `names`, `estimate`, `initial`, `start`: the free parameters' names, fitted
+      values, values the optimiser started from, and values in the model passed in.
+    - `uncertainty`: Fisher information, covariance, correlations, singular
+      directions and the per-parameter `identifiable` flags.
+    - `n_iterations`, `n_simulations`, `n_rejected`, `n_failed_trials`: accepted
+      iterations, simulations of single experiments (a simulation carrying
+      forward-mode sensitivities or followed by a reverse-mode pass counts once),
+      rejected trial steps, and trial steps whose simulation failed.
+    - `method`, `wall_time` [s] (fit only, including compilation), `notes`.
+    """
+
+    model: object
+    stderr: object
+    loss_history: np.ndarray
+    converged: bool
+    status: str
+    reason: str
+    names: tuple
+    estimate: np.ndarray
+    initial: np.ndarray
+    start: np.ndarray
+    uncertainty: Uncertainty
+    n_iterations: int
+    n_simulations: int
+    n_rejected: int
+    n_failed_trials: int
+    method: str
+    wall_time: float
+    notes: tuple = ()
+
+    @property
+    def identifiable(self) -> np.ndarray:
+        return self.uncertainty.identifiable
+
+    @property
+    def correlation(self) -> np.ndarray:
+        return self.uncertainty.correlation
+
+    @property
+    def table(self) -> list[ParameterRow]:
+        """One `ParameterRow` per free parameter."""
+        return [
+            ParameterRow(
+                name=n,
+                estimate=float(p),
+                stderr=float(s),
+                initial=float(i),
+                start=float(s0),
+                identifiable=bool(ok),
+            )
+            for n, p, s, i, s0, ok in zip(
+                self.names,
+                self.estimate,
+                self.uncertainty.stderr,
+                self.initial,
+                self.start,
+                self.identifiable,
+            )
+        ]
+
+    def report(self, max_correlation: float = 0.95) -> str:
+        """A text report: how the fit ended, then a table of estimate, standard
+        error, relative standard error and initial value per parameter, flagged
+        parameters, and strongly correlated pairs (|corr| > `max_correlation`)."""
+        lines = [
+            f"identify: {self.status} ({self.reason})",
+            f"  method {self.method}; {self.n_iterations} iterations, "
+            f"{self.n_simulations} simulations, {self.n_rejected} rejected steps "
+            f"({self.n_failed_trials} failed simulations), {self.wall_time:.1f} s",
+            f"  loss {self.loss_history[0]:.6g} -> {self.loss_history[-1]:.6g}, "
+            f"noise scale {self.uncertainty.noise_scale:.3g}",
+        ]
+        lines += [f"  note: {n}" for n in self.notes]
+        width = max(len("parameter"), *(len(n) for n in self.names))
+        lines.append(
+            f"  {'parameter':<{width}}  {'estimate':>12}  {'std. error':>11}  "
+            f"{'rel.':>8}  {'initial':>12}  "
+        )
+        for row in self.table:
+            flag = "" if row.identifiable else "  NOT IDENTIFIABLE"
+            lines.append(
+                f"  {row.name:<{width}}  {row.estimate:12.6g}  {row.stderr:11.4g}  "
+                f"{row.relative_stderr:8.2%}  {row.initial:12.6g}{flag}"
+            )
+        corr = self.correlation
+        pairs = [
+            (i, j)
+            for i in range(len(self.names))
+            for j in range(i + 1, len(self.names))
+            if np.isfinite(corr[i, j]) and abs(corr[i, j]) > max_correlation
+        ]
+        if pairs:
+            lines.append(f"  correlations above {max_correlation}:")
+            lines += [
+                f"    {self.names[i]} ~ {self.names[j]}: {corr[i, j]:+.3f}"
+                for i, j in pairs
+            ]
+        n_bad = int(np.sum(~self.identifiable))
+        if n_bad:
+            lines.append(
+                f"  {n_bad} parameter(s) not identifiable from these experiments "
+                f"(null or poorly determined directions of the Fisher information)"
+            )
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.report()

@@ -1,0 +1,121 @@
+"""Uncertainty and identifiability from the Gauss-Newton (Fisher) information.
+
+With whitened residuals $r$ (divided by the noise level $\\sigma$) and their
+Jacobian $J_p = \\partial r/\\partial p$ at the optimum, the Fisher information of
+the parameters is $\\mathcal I = J_p^T J_p / s^2$, where $s^2 = 1$ when the noise
+levels were given and $s^2 = |r|^2/(N - n_p)$ (estimated) otherwise. The
+covariance of the estimates is approximately $\\mathcal I^{-1}$.
+
+Identifiability is judged in relative coordinates $q_k = \\delta p_k / |p_k|$
+(scale-free): $J_q = J_p\\,\\operatorname{diag}|p|$ has singular values $S_i$ and
+right singular vectors $v_i$; along $v_i$ the relative standard error is
+$s / S_i$. A direction is *not identifiable* when $S_i \\le$ `rcond` $S_{\\max}$
+(numerically null: the data do not depend on it) and *poorly determined* when its
+relative standard error exceeds `max_relative_stderr`. A parameter is flagged
+when more than `NULL_SHARE` of it lies in the null directions (its standard error
+is then infinite), or when its own relative standard error exceeds
+`max_relative_stderr`.
+"""
+
+import dataclasses
+
+import numpy as np
+
+# Share of a parameter's unit vector in the null space above which it is flagged.
+NULL_SHARE = 1e-4
+
+
+@dataclasses.dataclass(frozen=True)
+class Uncertainty:
+    """Standard errors, correlations and identifiability of the estimates.
+
+    - `stderr`: standard error of each parameter (physical units; inf where not
+      identifiable).
+    - `covariance`, `correlation`: `(n_p, n_p)` over the identifiable
+      subspace (NaN rows/columns for parameters in a null direction).
+    - `fisher`: the Fisher information $J_p^T J_p / s^2$ (physical units).
+    - `singular_values`, `directions`: $S_i / s$ and $v_i$ (columns) of the
+      relative Jacobian; `relative_stderr_directions` $= s/S_i$.
+    - `identifiable`: per-parameter flag; `noise_scale`: $s$.
+    """
+
+    stderr: np.ndarray
+    covariance: np.ndarray
+    correlation: np.ndarray
+    fisher: np.ndarray
+    singular_values: np.ndarray
+    directions: np.ndarray
+    identifiable: np.ndarray
+    noise_scale: float
+
+    @property
+    def relative_stderr_directions(self) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return 1.0 / self.singular_values
+
+
+def gauss_newton_uncertainty(
+    residual,
+    jacobian_p,
+    p,
+    noise_known: bool,
+    rcond: float = 1e-8,
+    max_relative_stderr: float = 0.5,
+) -> Uncertainty:
+    """Uncertainty of the estimates $p$ from whitened residuals and their Jacobian.
+
+    **Arguments:**
+
+    - `residual`: $r$ at the optimum, shape `(N,)` (zeros where data are missing).
+    - `jacobian_p`: $J_p = \\partial r/\\partial p$, shape `(N, n_p)`.
+    - `p`: the estimates, shape `(n_p,)`.
+    - `noise_known`: whether $r$ was divided by known noise levels ($s = 1$).
+    - `rcond`: singular values below `rcond` times the largest are null directions.
+    - `max_relative_stderr`: parameters with a larger relative standard error are
+      flagged as not identifiable from these data.
+    """
+    residual = np.asarray(residual, dtype=np.float64)
+    J = np.asarray(jacobian_p, dtype=np.float64)
+    p = np.asarray(p, dtype=np.float64)
+    n_res, n_p = J.shape
+    used = np.count_nonzero(np.any(J != 0, axis=1) | (residual != 0))
+    if noise_known:
+        s = 1.0
+    else:
+        dof = max(used - n_p, 1)
+        s = float(np.sqrt(residual @ residual / dof))
+        s = max(s, np.finfo(np.float64).tiny)
+    scale = np.where(p != 0, np.abs(p), 1.0)
+    Jq = J * scale[None, :]
+    _, S, Vt = np.linalg.svd(Jq, full_matrices=False)
+    V = Vt.T
+    top = S[0] if S.size else 0.0
+    null = S <= rcond * top
+    null_share = np.sum(V[:, null] ** 2, axis=1)
+    in_null = null_share > NULL_SHARE
+    keep = ~null
+    inv = np.zeros_like(S)
+    inv[keep] = 1.0 / S[keep] ** 2
+    cov_q = s**2 * (V * inv[None, :]) @ V.T
+    cov = cov_q * np.outer(scale, scale)
+    var = np.diag(cov).copy()
+    stderr = np.sqrt(np.maximum(var, 0.0))
+    stderr[in_null] = np.inf
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(stderr, stderr)
+    corr[in_null, :] = np.nan
+    corr[:, in_null] = np.nan
+    cov[in_null, :] = np.nan
+    cov[:, in_null] = np.nan
+    relative = stderr / scale
+    identifiable = (~in_null) & (relative <= max_relative_stderr)
+    return Uncertainty(
+        stderr=stderr,
+        covariance=cov,
+        correlation=corr,
+        fisher=(J.T @ J) / s**2,
+        singular_values=S / s,
+        directions=V,
+        identifiable=identifiable,
+        noise_scale=s,
+    )

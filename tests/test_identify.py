@@ -1,0 +1,283 @@
+"""Parameter identification: recovery from synthetic data, the equation-error start,
+calibrated standard errors, identifiability flags, bad input and failed steps."""
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from helpers import three_body_model
+
+import elasticoop as eo
+from elasticoop._identify import (
+    Experiment,
+    equation_error,
+    identify,
+    savitzky_golay,
+)
+
+# Noise-free data and a 2x-off start: the fit must land on the truth to this
+# relative accuracy (the simulator runs at rtol 1e-10, far below it).
+RECOVERY_RTOL = 1e-6
+# Equation error with exact derivatives is one linear least-squares solve.
+EQUATION_ERROR_RTOL = 1e-4
+# Spread of repeated estimates vs reported standard errors (issue: factor 1.5).
+CALIBRATION_FACTOR = 1.5
+
+STIFF_DAMP = lambda m: (m.stiffness, m.damping)  # noqa: E731
+STIFFNESS = lambda m: m.stiffness  # noqa: E731
+
+
+def _lift(model):
+    """Contact forces holding the assembly's weight (grasps share it equally)."""
+    F = np.zeros((model.n_manipulators, 6))
+    F[:, 2] = float(jnp.sum(model.bodies.mass)) * model.gravity / model.n_manipulators
+    return F
+
+
+def _experiments(model, y0, ts, seeds, scale=(0.05, 0.3), noise=None, sigma=None):
+    """Motions from random initial rates; optionally with Gaussian noise on y."""
+    out = []
+    forces = _lift(model)
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        rates = rng.normal(size=(model.n_bodies, 6)) * np.repeat(scale, 3)
+        traj = eo.simulate(model, y0, rates, ts, forces=forces)
+        y = np.asarray(traj.y)
+        if noise is not None:
+            y = y + noise * rng.normal(size=y.shape)
+        out.append((traj, Experiment(ts, y, y0, rates, forces=forces, sigma=sigma)))
+    return out
+
+
+def _exact_derivatives(model, traj, forces):
+    applied = eo._forces.pad_to_bodies(jnp.asarray(forces), model.n_bodies)
+    acc = jax.jit(jax.vmap(lambda q, v: eo.accelerations(model, q, v, applied)[0]))
+    return np.asarray(traj.ydot), np.asarray(acc(traj.y, traj.ydot))
+
+
+def _flat(model, where):
+    return np.concatenate([np.ravel(x) for x in jax.tree.leaves(where(model))])
+
+
+# --- a small two-body problem: 6 stiffness parameters of one connection ----------
+
+UP = (0.0, np.pi / 2, 0.0)
+
+
+def _two_body():
+    bodies = [eo.RigidBody(1.0, (0.02, 0.03, 0.04)), eo.RigidBody(0.3, (2e-3,) * 3)]
+    conn = eo.Connection(
+        0,
+        1,
+        stiffness=(400.0, 500.0, 600.0, 4.0, 5.0, 6.0),
+        damping=(0.5,) * 3 + (0.005,) * 3,
+    )
+    y0 = jnp.array([[0.0, 0.0, 1.0, *UP], [0.4, 0.0, 1.0, *UP]])
+    return eo.MobileModel(bodies, [conn]).with_unloaded_state(y0), y0
+
+
+TS_SMALL = jnp.linspace(0.0, 0.25, 51)
+TS_RECOVERY = jnp.linspace(0.0, 0.3, 121)
+
+
+@pytest.fixture(scope="module")
+def two_body_runs():
+    model, y0 = _two_body()
+    return model, _experiments(model, y0, TS_RECOVERY, seeds=(1, 2))
+
+
+def test_noise_free_recovery_from_2x_off(two_body_runs):
+    model, runs = two_body_runs
+    start = eqx.tree_at(STIFF_DAMP, model, (2 * model.stiffness, 2 * model.damping))
+    result = identify(start, [e for _, e in runs], STIFF_DAMP, window=7, progress=False)
+    assert result.converged, result.reason
+    truth = _flat(model, STIFF_DAMP)
+    np.testing.assert_allclose(result.estimate, truth, rtol=RECOVERY_RTOL)
+    np.testing.assert_allclose(
+        _flat(result.model, STIFF_DAMP), truth, rtol=RECOVERY_RTOL
+    )
+    assert result.loss_history[-1] < 1e-12 * result.loss_history[0]
+    assert result.n_simulations >= 2 * result.n_iterations
+    stderr = jax.tree.leaves(result.stderr)
+    assert [s.shape for s in stderr] == [(1, 6), (1, 6)]
+    assert "stiffness[0-1].x" in result.report()
+
+
+def test_equation_error_exact_derivatives(two_body_runs):
+    model, runs = two_body_runs
+    forces = _lift(model)
+    exps = []
+    for traj, e in runs:
+        ydot, yddot = _exact_derivatives(model, traj, forces)
+        exps.append(
+            Experiment(e.ts, e.y, e.y_init, e.ydot_init, forces, ydot=ydot, yddot=yddot)
+        )
+    start = eqx.tree_at(STIFF_DAMP, model, (2 * model.stiffness, 0.3 * model.damping))
+    fitted = equation_error(start, exps, STIFF_DAMP)
+    np.testing.assert_allclose(
+        _flat(fitted, STIFF_DAMP), _flat(model, STIFF_DAMP), rtol=EQUATION_ERROR_RTOL
+    )
+
+
+def test_savitzky_golay_matches_scipy():
+    signal = pytest.importorskip("scipy.signal")
+    ts = np.linspace(0.0, 1.0, 201)
+    rng = np.random.default_rng(0)
+    x = np.stack([np.sin(7 * ts), ts**3], axis=1) + 1e-3 * rng.normal(size=(201, 2))
+    ours = savitzky_golay(x, ts, window=15, polyorder=4)
+    for d, est in enumerate(ours):
+        ref = signal.savgol_filter(
+            x, 15, 4, deriv=d, delta=ts[1] - ts[0], axis=0, mode="interp"
+        )
+        np.testing.assert_allclose(est, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+    # exact on a polynomial of degree <= polyorder
+    p = 1 + 2 * ts - ts**2 + 0.5 * ts**4
+    _, d1, d2 = savitzky_golay(p, ts, window=9, polyorder=4)
+    np.testing.assert_allclose(d1, 2 - 2 * ts + 2 * ts**3, atol=1e-9)
+    np.testing.assert_allclose(d2, -2 + 6 * ts**2, atol=1e-7)
+
+
+@pytest.mark.slow
+def test_standard_errors_are_calibrated():
+    """One experiment, fresh seeded noise in each of `repeats` data sets: the
+    spread of the estimates must match the reported standard errors."""
+    model, y0 = _two_body()
+    noise, repeats = 1e-5, 20
+    ((traj, clean),) = _experiments(model, y0, TS_SMALL, seeds=(7,))
+    estimates, stderrs = [], []
+    for k in range(repeats):
+        rng = np.random.default_rng(1000 + k)
+        y = np.asarray(traj.y) + noise * rng.normal(size=traj.y.shape)
+        e = Experiment(
+            TS_SMALL, y, y0, clean.ydot_init, forces=_lift(model), sigma=noise
+        )
+        result = identify(model, e, STIFFNESS, init="model", progress=False)
+        assert result.converged, result.reason
+        estimates.append(result.estimate)
+        stderrs.append(result.uncertainty.stderr)
+    spread = np.std(np.asarray(estimates), axis=0, ddof=1)
+    reported = np.mean(np.asarray(stderrs), axis=0)
+    ratio = spread / reported
+    assert np.all(ratio < CALIBRATION_FACTOR), ratio
+    assert np.all(ratio > 1 / CALIBRATION_FACTOR), ratio
+    # and the estimates scatter about the truth (bias << spread)
+    bias = np.mean(np.asarray(estimates), axis=0) - _flat(model, STIFFNESS)
+    assert np.all(np.abs(bias) < 3 * reported / np.sqrt(repeats)), bias / reported
+
+
+def test_unexcited_parameters_are_flagged():
+    model, y0 = _two_body()
+    # the grasp moves along the link (x) only: no y/z deflection, no rotation
+    rates = np.zeros((2, 6))
+    rates[1, 0] = 0.05
+    # no contact forces: everything falls together, nothing sags
+    free_fall = np.zeros((1, 6))
+    traj = eo.simulate(model, y0, rates, TS_SMALL, forces=free_fall)
+    e = Experiment(TS_SMALL, traj.y, y0, rates, forces=free_fall, sigma=1e-4)
+    result = identify(model, e, STIFFNESS, init="model", progress=False)
+    np.testing.assert_array_equal(result.identifiable, [True] + [False] * 5)
+    stderr = np.asarray(result.stderr).ravel()
+    assert np.isfinite(stderr[0]) and np.all(np.isinf(stderr[1:]))
+    assert "NOT IDENTIFIABLE" in result.report()
+
+
+class _SolverFailingAboveLimit(diffrax.Tsit5):
+    """Tsit5 that reports a solver failure when the simulated model's rotational
+    stiffness c^{a2} exceeds `limit` (`simulate` passes the model as `args[0]`)."""
+
+    limit: float = 10.0
+
+    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+        *out, result = super().step(terms, t0, t1, y0, args, solver_state, made_jump)
+        bad = args[0].stiffness[0, 4] > self.limit
+        failed = diffrax.RESULTS.where(
+            bad, diffrax.RESULTS.nonlinear_divergence, result
+        )
+        return (*out, failed)
+
+
+@pytest.mark.slow
+def test_failing_trial_step_is_shortened_not_fatal():
+    """Adam's first step moves every log-parameter by the learning rate: from
+    c^{a2} = 2.5 (truth 5, the gradient says up), lr = 2 proposes 18.5, where the
+    solver fails; the step must be halved (6.8) and the fit go on."""
+    model, y0 = _two_body()
+    rates = np.zeros((2, 6))
+    rates[1, 4], rates[0, 4] = 2.0, -0.2  # swing the grasp against the object
+    traj = eo.simulate(model, y0, rates, TS_SMALL)
+    e = Experiment(TS_SMALL, traj.y, y0, rates)
+    start = eqx.tree_at(STIFFNESS, model, 0.5 * model.stiffness)
+    result = identify(
+        start,
+        e,
+        STIFFNESS,
+        init="model",
+        method=optax.adam(2.0),
+        max_steps=3,
+        progress=False,
+        solver=_SolverFailingAboveLimit(),
+    )
+    assert result.n_failed_trials >= 1
+    assert np.all(np.isfinite(result.loss_history))
+    assert result.loss_history[-1] < result.loss_history[0]
+    assert float(result.model.stiffness[0, 4]) < 10.0
+
+
+# --- bad input ----------------------------------------------------------------
+
+
+def _data():
+    model, y0 = _two_body()
+    ts = np.linspace(0, 0.1, 11)
+    y = np.broadcast_to(np.asarray(y0), (11, 2, 6)).copy()
+    return model, y0, ts, y
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(y=np.zeros((10, 2, 6))), "time grids do not match"),
+        (dict(y=np.zeros((11, 2, 5))), r"shape \(times, bodies, 6\)"),
+        (dict(ts=np.linspace(0, 1, 11)[::-1]), "strictly increasing"),
+        (dict(y_init=np.zeros((3, 6))), r"y_init must have shape \(2, 6\)"),
+        (dict(sigma=-1.0), "sigma must be positive"),
+        (dict(sigma=np.ones(5)), "sigma must be a scalar"),
+        (dict(forces=np.zeros((3, 6))), "forces must give shape"),
+    ],
+)
+def test_bad_experiment(change, match):
+    model, y0, ts, y = _data()
+    args = dict(ts=ts, y=y, y_init=y0, ydot_init=np.zeros((2, 6)))
+    args.update(change)
+    with pytest.raises(ValueError, match=match):
+        Experiment(**args)
+
+
+def test_all_nan_channel_and_wrong_bodies():
+    model, y0, ts, y = _data()
+    y[:, 1, 3] = np.nan
+    with pytest.raises(ValueError, match=r"y\[:, 1, 3\] is NaN in every sample"):
+        Experiment(ts, y, y0, np.zeros((2, 6)))
+    three = three_body_model()
+    ok = Experiment(ts, np.nan_to_num(y), y0, np.zeros((2, 6)))
+    with pytest.raises(ValueError, match="has 2 bodies but the model has 3"):
+        identify(three, ok, STIFFNESS, progress=False)
+
+
+def test_bad_identify_arguments():
+    model, y0, ts, y = _data()
+    e = Experiment(ts, y, y0, np.zeros((2, 6)))
+    with pytest.raises(ValueError, match="not a floating-point array"):
+        identify(model, e, lambda m: m.pairs, progress=False)
+    with pytest.raises(ValueError, match="where must"):
+        identify(model, e, lambda m: m.stiffness[0], progress=False)
+    with pytest.raises(ValueError, match="method must be one of"):
+        identify(model, e, STIFFNESS, method="newton", progress=False)
+    with pytest.raises(ValueError, match="Log reparameterisation"):
+        zero = eqx.tree_at(STIFFNESS, model, jnp.zeros((1, 6)))
+        identify(zero, e, STIFFNESS, init="model", progress=False)
+    with pytest.raises(ValueError, match="at least one Experiment"):
+        identify(model, [], STIFFNESS, progress=False)
