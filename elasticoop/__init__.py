@@ -30,6 +30,7 @@ from ._analysis import (  # noqa: E402
     trajectory_load_distribution as trajectory_load_distribution,
 )
 from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
+from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
 from ._config import ScenarioError as ScenarioError, load_scenario as load_scenario  # noqa: E402, I001
 from ._export import trajectory_to_xarray as trajectory_to_xarray  # noqa: E402
 from ._forces import (  # noqa: E402

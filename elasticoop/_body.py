@@ -76,8 +76,18 @@ def kinetic_energy(
     This is the only place the kinetic energy is written; the mass matrix
     $W_i = \\partial^2 T_i/\\partial\\dot y_i^2$ and the velocity terms follow by
     autodiff.
+
+    `y` and `ydot` are arrays `(6,)`, or sequences of six arrays (coordinate by
+    coordinate) for stacked bodies (`body.mass` `(bodies,)`, `body.inertia`
+    `(bodies, 3)`), which gives the `(bodies,)` energies in one elementwise pass.
     """
-    omega = rotation.angular_velocity(y[3:], ydot[3:])
-    return 0.5 * body.mass * (ydot[:3] @ ydot[:3]) + 0.5 * omega @ (
-        body.inertia * omega
+    v = ydot
+    w1, w2, w3 = rotation.angular_velocity_components(y[3:6], ydot[3:6])
+    inertia = body.inertia
+    translational = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    rotational = (
+        inertia[..., 0] * w1 * w1
+        + inertia[..., 1] * w2 * w2
+        + inertia[..., 2] * w3 * w3
     )
+    return 0.5 * body.mass * translational + 0.5 * rotational

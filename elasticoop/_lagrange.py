@@ -5,49 +5,113 @@ $$w = \\frac{\\partial^2 T}{\\partial \\dot Y\\,\\partial Y}\\dot Y
       - \\frac{\\partial T}{\\partial Y}
       + \\frac{\\partial R}{\\partial \\dot Y} + \\frac{\\partial \\Pi}{\\partial Y}.$$
 
-$W$ is block diagonal: it is built and solved per body (6x6 blocks, vmapped), and the
-velocity terms come from one Jacobian-vector product per body. Nothing here is
-derived by hand.
+Nothing here is derived by hand; the structure of the problem is used to keep the
+derivatives cheap:
+
+- $T = \\sum_i T_i(Y_i, \\dot Y_i)$ is evaluated for all bodies at once, coordinate by
+  coordinate (six arrays of shape `(bodies,)`), so under `jit`/`vmap` it is one
+  elementwise computation that XLA fuses into a few loops.
+- $W$ is block diagonal over bodies, so column $k$ of every body's block $W_i$ comes
+  from one forward-mode product of the momentum $p = \\partial T/\\partial\\dot Y$ in
+  direction "rate $k$ of every body".
+- About the mass centre $T_i$ has no translation-rotation coupling, so
+  $W_i = \\operatorname{diag}(W_{lin}, W_{rot})$; each 3x3 block is solved by a
+  closed-form $LDL^T$ factorisation (no pivoting: the blocks are positive definite
+  away from gimbal lock).
+- The velocity terms are one Jacobian-vector product of $p$ along $\\dot Y$ minus
+  $\\partial T/\\partial Y$; no Hessian is formed.
+- $\\partial\\Pi/\\partial Y$ and $\\partial R/\\partial\\dot Y$ come from the model's
+  `restoring_forces` (per connection and gathered per body for `MobileModel`).
 """
 
 import jax
 import jax.numpy as jnp
 
-from ._body import RigidBody, kinetic_energy
-from ._custom_types import BodyState, State
+from ._body import kinetic_energy
+from ._custom_types import State
 from ._models import AbstractElasticModel
-from ._rotations import AbstractRotation
+
+_COORDINATES = range(6)
+_BLOCKS = ((0, 1, 2), (3, 4, 5))  # translations, Euler angles
 
 
-def _body_terms(body: RigidBody, rotation: AbstractRotation, y: BodyState, ydot):
-    """$W_i$ and the velocity terms
-    $(\\partial^2 T_i/\\partial\\dot y_i \\partial y_i)\\dot y_i
-    - \\partial T_i/\\partial y_i$
-    of one body."""
-
-    def energy(q, v):
-        return kinetic_energy(body, rotation, q, v)
-
-    momentum = jax.grad(energy, argnums=1)
-    W = jax.jacfwd(momentum, argnums=1)(y, ydot)
-    _, momentum_rate = jax.jvp(lambda q: momentum(q, ydot), (y,), (ydot,))
-    return W, momentum_rate - jax.grad(energy, argnums=0)(y, ydot)
+def _coordinates(x: State) -> tuple:
+    """`(bodies, 6)` -> six arrays `(bodies,)`, coordinate by coordinate."""
+    return tuple(x[:, k] for k in _COORDINATES)
 
 
-_per_body = jax.vmap(_body_terms, in_axes=(0, None, 0, 0))
+def _replace(xs: tuple, k: int, value) -> tuple:
+    return xs[:k] + (value,) + xs[k + 1 :]
+
+
+def _kinetic_energy(model: AbstractElasticModel, q: tuple, v: tuple):
+    """$T = \\sum_i T_i$ from coordinate tuples."""
+    return jnp.sum(kinetic_energy(model.bodies, model.rotation, q, v))
+
+
+def _momentum(model, q: tuple, v: tuple) -> tuple:
+    """$p = \\partial T/\\partial\\dot Y$, six arrays `(bodies,)`."""
+    return jax.grad(_kinetic_energy, argnums=2)(model, q, v)
+
+
+def _mass_matrix_columns(model, q: tuple, v: tuple, columns) -> dict:
+    """$W_{ik}$ for `k` in `columns`: column $k$ of all blocks $W_i$ at once by one
+    forward-mode product of $p$ (linear in $\\dot Y$) along rate $k$ of every
+    body. Returns `{(i, k): (bodies,)}` for all rows `i`."""
+    out = {}
+    ones = jnp.ones_like(v[0])
+    for k in columns:
+        _, column = jax.jvp(
+            lambda vk, k=k: _momentum(model, q, _replace(v, k, vk)), (v[k],), (ones,)
+        )
+        for i in _COORDINATES:
+            out[i, k] = column[i]
+    return out
+
+
+def _velocity_terms(model, q: tuple, v: tuple) -> tuple:
+    """$(\\partial^2 T/\\partial\\dot Y\\partial Y)\\dot Y - \\partial T/\\partial Y$:
+    one Jacobian-vector product of the momentum along $\\dot Y$."""
+    _, momentum_rate = jax.jvp(lambda x: _momentum(model, x, v), (q,), (v,))
+    dT_dq = jax.grad(_kinetic_energy, argnums=1)(model, q, v)
+    return tuple(a - b for a, b in zip(momentum_rate, dT_dq))
+
+
+def _ldl_solve3(W: dict, rows: tuple, b: tuple) -> tuple:
+    """Solve the symmetric positive definite 3x3 system $W x = b$ (entries
+    `W[rows[r], rows[c]]`, lower triangle used) by closed-form $LDL^T$."""
+    i, j, k = rows
+    d1 = W[i, i]
+    r1 = 1.0 / d1
+    l21 = W[j, i] * r1
+    l31 = W[k, i] * r1
+    d2 = W[j, j] - l21 * l21 * d1
+    r2 = 1.0 / d2
+    l32 = (W[k, j] - l31 * l21 * d1) * r2
+    r3 = 1.0 / (W[k, k] - l31 * l31 * d1 - l32 * l32 * d2)
+    z1 = b[0]
+    z2 = b[1] - l21 * z1
+    z3 = b[2] - l31 * z1 - l32 * z2
+    x3 = z3 * r3
+    x2 = z2 * r2 - l32 * x3
+    x1 = z1 * r1 - l21 * x2 - l31 * x3
+    return x1, x2, x3
 
 
 def mass_matrix(model: AbstractElasticModel, y: State) -> jax.Array:
     """The diagonal blocks $W_i(Y_i)$ of the mass matrix, shape `(bodies, 6, 6)`."""
-    W, _ = _per_body(model.bodies, model.rotation, y, jnp.zeros_like(y))
-    return W
+    q = _coordinates(y)
+    W = _mass_matrix_columns(model, q, _coordinates(jnp.zeros_like(y)), _COORDINATES)
+    return jnp.stack(
+        [jnp.stack([W[i, k] for k in _COORDINATES], -1) for i in _COORDINATES], -2
+    )
 
 
 def velocity_terms(model: AbstractElasticModel, y: State, ydot: State) -> State:
     """$\\dot W_i \\dot Y_i - \\partial T_i/\\partial Y_i$ per body, shape
     `(bodies, 6)` (the Coriolis and centrifugal terms of $w$)."""
-    _, c = _per_body(model.bodies, model.rotation, y, ydot)
-    return c
+    c = _velocity_terms(model, _coordinates(y), _coordinates(ydot))
+    return jnp.stack(c, -1)
 
 
 def elastic_forces(model: AbstractElasticModel, y: State) -> State:
@@ -62,7 +126,7 @@ def damping_forces(model: AbstractElasticModel, y: State, ydot: State) -> State:
 
 
 def accelerations(model: AbstractElasticModel, y: State, ydot: State, applied: State):
-    """Solve $W\\ddot Y = G + F - w$ per body.
+    """Solve $W\\ddot Y = G + F - w$ per body (3x3 blocks, closed-form $LDL^T$).
 
     **Arguments:** the model, $Y$, $\\dot Y$ and the applied generalized forces $F$
     (all `(bodies, 6)`).
@@ -71,11 +135,16 @@ def accelerations(model: AbstractElasticModel, y: State, ydot: State, applied: S
     $\\partial R/\\partial\\dot Y$
     (whose product with $\\dot Y$ is the dissipated power $2R$).
     """
-    W, c = _per_body(model.bodies, model.rotation, y, ydot)
-    damping = damping_forces(model, y, ydot)
-    rhs = model.gravity_forces() + applied - c - damping - elastic_forces(model, y)
-    yddot = jax.vmap(jnp.linalg.solve)(W, rhs)
-    return yddot, damping
+    q, v = _coordinates(y), _coordinates(ydot)
+    elastic, damping = model.restoring_forces(y, ydot)
+    rhs = model.gravity_forces() + applied - elastic - damping
+    W = _mass_matrix_columns(model, q, v, _COORDINATES)
+    c = _velocity_terms(model, q, v)
+    b = tuple(rhs[:, k] - c[k] for k in _COORDINATES)
+    yddot = []
+    for block in _BLOCKS:
+        yddot += _ldl_solve3(W, block, tuple(b[k] for k in block))
+    return jnp.stack(yddot, -1), damping
 
 
 def inverse_dynamics(
@@ -83,12 +152,17 @@ def inverse_dynamics(
 ) -> State:
     """Generalized forces that realise a motion: $F = W\\ddot Y + w - G$,
     shape `(bodies, 6)`."""
-    W, c = _per_body(model.bodies, model.rotation, y, ydot)
-    inertial = jnp.einsum("bij,bj->bi", W, yddot)
+    q, v = _coordinates(y), _coordinates(ydot)
+    W = _mass_matrix_columns(model, q, v, _COORDINATES)
+    a = _coordinates(yddot)
+    inertial = jnp.stack(
+        [sum(W[i, k] * a[k] for k in _COORDINATES) for i in _COORDINATES], -1
+    )
+    elastic, damping = model.restoring_forces(y, ydot)
     return (
         inertial
-        + c
-        + damping_forces(model, y, ydot)
-        + elastic_forces(model, y)
+        + velocity_terms(model, y, ydot)
+        + damping
+        + elastic
         - model.gravity_forces()
     )

@@ -6,12 +6,15 @@ sub-command, write a module like `check.py` and list it in `COMMANDS`.
 """
 
 import argparse
+import contextlib
 import sys
 
+from .._cache import compilation_cache
 from . import check, demo, examples, modes, run
 from ._common import EXIT_USAGE, report_user_errors
 
 COMMANDS = (run, check, demo, examples, modes)
+CACHED = ("run", "demo", "modes")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,6 +50,9 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
-    with report_user_errors(args.command) as outcome:
+    # Commands that compile simulations keep the executables on disk
+    # ($ELASTICOOP_CACHE_DIR or ~/.cache/elasticoop/jax) for the next process.
+    cache = compilation_cache() if args.command in CACHED else contextlib.nullcontext()
+    with report_user_errors(args.command) as outcome, cache:
         outcome.code = args.func(args)
     return outcome.code

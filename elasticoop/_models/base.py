@@ -53,8 +53,13 @@ class AbstractElasticModel(eqx.Module):
 
     def kinetic_energy(self, y: State, ydot: State) -> Scalar:
         """$T = \\sum_i T_i(Y_i, \\dot Y_i)$ [J]."""
-        per_body = jax.vmap(kinetic_energy, in_axes=(0, None, 0, 0))
-        return jnp.sum(per_body(self.bodies, self.rotation, y, ydot))
+        per_body = kinetic_energy(
+            self.bodies,
+            self.rotation,
+            tuple(y[..., k] for k in range(6)),
+            tuple(ydot[..., k] for k in range(6)),
+        )
+        return jnp.sum(per_body)
 
     def gravity_potential(self, y: State) -> Scalar:
         """$\\sum_i m_i g z_i$ [J] (gravity along $-z$)."""
@@ -62,8 +67,17 @@ class AbstractElasticModel(eqx.Module):
 
     def gravity_forces(self) -> State:
         """$G_i = (0, 0, -m_i g, 0, 0, 0)$, shape `(bodies, 6)`."""
-        g = jnp.zeros((self.n_bodies, 6))
-        return g.at[:, 2].set(-self.gravity * self.bodies.mass)
+        zero = jnp.zeros_like(self.bodies.mass)
+        weight = -self.gravity * self.bodies.mass
+        return jnp.stack([zero, zero, weight, zero, zero, zero], axis=-1)
+
+    def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
+        """$(\\partial\\Pi/\\partial Y, \\partial R/\\partial\\dot Y)$, each
+        `(bodies, 6)`, by autodiff of `potential` and `dissipation` (a model may
+        override this with a cheaper route to the same derivatives)."""
+        elastic = jax.grad(self.potential)(y)
+        damping = jax.grad(self.dissipation, argnums=1)(y, ydot)
+        return elastic, damping
 
     def total_energy(self, y: State, ydot: State) -> Scalar:
         """$E = T + \\Pi + \\sum_i m_i g z_i$ [J]."""

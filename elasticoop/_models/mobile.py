@@ -65,6 +65,16 @@ class Connection(eqx.Module):
         )
 
 
+def _deflection(d, rest_length) -> tuple:
+    """$\\delta = (1 - \\rho_0/|d|)\\, d$ component by component: `d` is an array
+    `(3,)` or a sequence of three arrays (many links at once)."""
+    sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    ok = sq > 0
+    length = jnp.sqrt(jnp.where(ok, sq, 1.0))
+    scale = 1.0 - jnp.where(ok, rest_length / length, 0.0)
+    return scale * d[0], scale * d[1], scale * d[2]
+
+
 def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
     """Deflection of a link, $\\delta = (1 - \\rho_0/|d|)\\, d$, $d = r_i - r_j$.
 
@@ -72,30 +82,67 @@ def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
     there is guarded (no NaN, also in gradients) and `simulate` stops with an error
     before a link collapses. For $\\rho_0 = 0$ it is simply $d$, smooth everywhere.
     """
-    sq = d @ d
-    ok = sq > 0
-    length = jnp.sqrt(jnp.where(ok, sq, 1.0))
-    return d - jnp.where(ok, rest_length / length, 0.0) * d
+    return jnp.stack(_deflection(d, rest_length))
 
 
 def connection_potential(stiffness, rest_length, rest_angles, yi, yj) -> Scalar:
     """$\\Pi_{ij} = \\tfrac12\\sum_k c^k \\delta_k^2
-    + \\tfrac12\\sum_a c^a (\\Delta\\mathcal{A}_a - \\Delta\\mathcal{A}_{0,a})^2$."""
-    delta = deflection(yi[:3] - yj[:3], rest_length)
-    d_angles = yi[3:] - yj[3:] - rest_angles
-    return 0.5 * (stiffness[:3] @ delta**2 + stiffness[3:] @ d_angles**2)
+    + \\tfrac12\\sum_a c^a (\\Delta\\mathcal{A}_a - \\Delta\\mathcal{A}_{0,a})^2$.
+
+    `yi`, `yj` are arrays `(6,)`, or sequences of six arrays (coordinate by
+    coordinate) for many connections at once, with `stiffness` `(P, 6)`,
+    `rest_length` `(P,)` and `rest_angles` `(P, 3)`."""
+    c = stiffness
+    delta = _deflection([yi[k] - yj[k] for k in range(3)], rest_length)
+    energy = 0.0
+    for k in range(3):
+        angle = yi[3 + k] - yj[3 + k] - rest_angles[..., k]
+        energy = energy + c[..., k] * delta[k] ** 2 + c[..., 3 + k] * angle**2
+    return 0.5 * energy
 
 
 def connection_dissipation(damping, rest_length, yi, yj, vi, vj) -> Scalar:
     """$R_{ij} = \\tfrac12 \\dot\\delta^T D^\\delta \\dot\\delta
     + \\tfrac12 \\Delta\\dot{\\mathcal{A}}^T D^{\\mathcal A} \\Delta\\dot{\\mathcal{A}}$
     with $\\dot\\delta = \\mathcal{G}(d)\\,\\dot d$ the deflection rate: the Jacobian
-    $\\mathcal{G}$ of the deflection is applied by a forward-mode product."""
-    _, delta_rate = jax.jvp(
-        lambda d: deflection(d, rest_length), (yi[:3] - yj[:3],), (vi[:3] - vj[:3],)
-    )
-    angle_rate = vi[3:] - vj[3:]
-    return 0.5 * (damping[:3] @ delta_rate**2 + damping[3:] @ angle_rate**2)
+    $\\mathcal{G}$ of the deflection is applied by a forward-mode product.
+
+    Arguments as for `connection_potential` (arrays `(6,)` or coordinate
+    sequences)."""
+    b = damping
+    d = tuple(yi[k] - yj[k] for k in range(3))
+    d_rate = tuple(vi[k] - vj[k] for k in range(3))
+    _, delta_rate = jax.jvp(lambda x: _deflection(x, rest_length), (d,), (d_rate,))
+    power = 0.0
+    for k in range(3):
+        angle_rate = vi[3 + k] - vj[3 + k]
+        power = power + b[..., k] * delta_rate[k] ** 2 + b[..., 3 + k] * angle_rate**2
+    return 0.5 * power
+
+
+def _incidence(pairs, n_bodies: int):
+    """Static per-body lists of the connections at each body: `(index, sign)`
+    arrays `(bodies, K)` (sign +1 where the body is the first end, -1 the second,
+    0 padding), K the largest number of connections at one body."""
+    rows = [[] for _ in range(n_bodies)]
+    for k, (i, j) in enumerate(pairs):
+        rows[i].append((k, 1.0))
+        rows[j].append((k, -1.0))
+    width = max(1, max(len(r) for r in rows))
+    index = np.zeros((n_bodies, width), dtype=np.int32)
+    sign = np.zeros((n_bodies, width))
+    for b, row in enumerate(rows):
+        for slot, (k, s) in enumerate(row):
+            index[b, slot], sign[b, slot] = k, s
+    return index, sign
+
+
+# Gather the per-connection forces per body (dense padded lists, no scatter) while
+# bodies x (largest degree) stays within this factor of bodies + 2 connections;
+# beyond (a hub with many links) a segment sum keeps the cost linear.
+_GATHER_OVERHEAD = 4
+# Largest number of connections at one body for which the per-body sum is unrolled.
+_UNROLL = 8
 
 
 class MobileModel(AbstractElasticModel):
@@ -127,6 +174,7 @@ class MobileModel(AbstractElasticModel):
     rest_angles: jnp.ndarray
     gravity: Scalar
     convention: str = eqx.field(static=True)
+    connectivity: tuple[tuple[int, int], ...] = eqx.field(static=True)
 
     def __init__(self, bodies, connections=(), gravity=9.81, convention="zxz"):
         get_rotation(convention)
@@ -146,8 +194,9 @@ class MobileModel(AbstractElasticModel):
                         f"refers to body {end}, but the model has {n} bodies "
                         f"(indices 0..{n - 1})"
                     )
+        self.connectivity = tuple((c.i, c.j) for c in connections)
         self.pairs = jnp.asarray(
-            np.array([(c.i, c.j) for c in connections], dtype=np.int32).reshape(-1, 2)
+            np.array(self.connectivity, dtype=np.int32).reshape(-1, 2)
         )
 
         def stacked(field, shape):
@@ -182,6 +231,61 @@ class MobileModel(AbstractElasticModel):
             self.damping, self.rest_length, yi, yj, vi, vj
         )
         return jnp.sum(per)
+
+    def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
+        """$(\\partial\\Pi/\\partial Y, \\partial R/\\partial\\dot Y)$, each
+        `(bodies, 6)`.
+
+        Per connection, by autodiff of $\\Pi_{ij}$ and $R_{ij}$ with respect to the
+        first end's coordinates (all connections at once, coordinate by
+        coordinate); both depend on $Y_i - Y_j$ only, so the second end gets the
+        opposite. The per-body sums gather each body's connections from the
+        static connectivity (no scatter-add in the hot path).
+        """
+        n = self.n_bodies
+        if not self.connectivity:
+            zero = jnp.zeros_like(y)
+            return zero, zero
+        pairs = np.asarray(self.connectivity, dtype=np.int32)
+        first, second = pairs[:, 0], pairs[:, 1]
+        # One gather of both ends' coordinates and rates, `(2P, 12)`.
+        P = len(pairs)
+        ends = jnp.concatenate([y, ydot], axis=-1)[np.concatenate([first, second])]
+        yi = tuple(ends[:P, k] for k in range(6))
+        yj = tuple(ends[P:, k] for k in range(6))
+        vi = tuple(ends[:P, 6 + k] for k in range(6))
+        vj = tuple(ends[P:, 6 + k] for k in range(6))
+
+        def potential(yi):
+            return jnp.sum(
+                connection_potential(
+                    self.stiffness, self.rest_length, self.rest_angles, yi, yj
+                )
+            )
+
+        def dissipation(vi):
+            return jnp.sum(
+                connection_dissipation(self.damping, self.rest_length, yi, yj, vi, vj)
+            )
+
+        # 12 arrays (P,): dPi_ij/dY_i then dR_ij/dYdot_i, coordinate by coordinate.
+        per_connection = jax.grad(potential)(yi) + jax.grad(dissipation)(vi)
+        index, sign = _incidence(self.connectivity, n)
+        if index.size <= _GATHER_OVERHEAD * (n + 2 * P):
+            if index.shape[1] <= _UNROLL:
+                per_body = [
+                    sum(g[index[:, s]] * sign[:, s] for s in range(index.shape[1]))
+                    for g in per_connection
+                ]
+            else:
+                per_body = [jnp.sum(g[index] * sign, axis=1) for g in per_connection]
+        else:
+            ends = np.concatenate([first, second])
+            per_body = [
+                jax.ops.segment_sum(jnp.concatenate([g, -g]), ends, num_segments=n)
+                for g in per_connection
+            ]
+        return jnp.stack(per_body[:6], axis=-1), jnp.stack(per_body[6:], axis=-1)
 
     def connection_wrench(self, y: State) -> jnp.ndarray:
         """Generalized elastic force of each connection on its first body $i$,

@@ -28,9 +28,20 @@ class AbstractRotation(eqx.Module):
         """Rotation matrix $R$ taking body-frame vectors to the world frame."""
 
     @abc.abstractmethod
+    def angular_velocity_rows(self, angles) -> tuple:
+        """The entries of $L_\\omega(\\mathcal{A})$ as three rows of three, with
+        structural zeros and ones as Python floats (`0.0`, `1.0`).
+
+        `angles` may be an array `(3,)` or a sequence of three arrays of any common
+        shape (the angles of many bodies at once, one array per angle); the entries
+        then have that shape. This is the only place $L_\\omega$ is written.
+        """
+
     def angular_velocity_matrix(self, angles: Vector3) -> Matrix3:
         """$L_\\omega(\\mathcal{A})$, with
-        $\\omega_{body} = L_\\omega \\dot{\\mathcal{A}}$."""
+        $\\omega_{body} = L_\\omega \\dot{\\mathcal{A}}$, shape `(3, 3)`."""
+        rows = self.angular_velocity_rows(angles)
+        return jnp.stack([jnp.stack(jnp.broadcast_arrays(*row)) for row in rows])
 
     @abc.abstractmethod
     def regularity(self, angles: Vector3) -> Scalar:
@@ -44,7 +55,31 @@ class AbstractRotation(eqx.Module):
     def angular_velocity(self, angles: Vector3, angle_rates: Vector3) -> Vector3:
         """Body-frame angular velocity
         $\\omega = L_\\omega(\\mathcal{A})\\dot{\\mathcal{A}}$."""
-        return self.angular_velocity_matrix(angles) @ angle_rates
+        return jnp.stack(
+            jnp.broadcast_arrays(*self.angular_velocity_components(angles, angle_rates))
+        )
+
+    def angular_velocity_components(self, angles, angle_rates) -> tuple:
+        """$(\\omega_1, \\omega_2, \\omega_3)$ as a tuple, with `angles` and
+        `angle_rates` arrays `(3,)` or sequences of three arrays (many bodies at
+        once).
+
+        Written out entry by entry (structural zeros skipped) instead of as a
+        matrix-vector product, so that under autodiff and `vmap` the whole kinetic
+        energy stays elementwise and XLA fuses it into a few loops.
+        """
+        rates = (angle_rates[0], angle_rates[1], angle_rates[2])
+        out = []
+        for row in self.angular_velocity_rows(angles):
+            terms = []
+            for entry, rate in zip(row, rates):
+                if isinstance(entry, float) and entry == 0.0:
+                    continue
+                terms.append(
+                    rate if isinstance(entry, float) and entry == 1.0 else entry * rate
+                )
+            out.append(sum(terms[1:], terms[0]))
+        return tuple(out)
 
 
 def rot_x(a: Scalar) -> Matrix3:

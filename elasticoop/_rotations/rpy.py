@@ -27,12 +27,11 @@ class RPY(AbstractRotation):
         roll, pitch, yaw = angles
         return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
 
-    def angular_velocity_matrix(self, angles: Vector3) -> Matrix3:
-        roll, pitch, _ = angles
+    def angular_velocity_rows(self, angles) -> tuple:
+        roll, pitch = angles[0], angles[1]
         sr, cr = jnp.sin(roll), jnp.cos(roll)
         sp, cp = jnp.sin(pitch), jnp.cos(pitch)
-        zero, one = jnp.zeros_like(pitch), jnp.ones_like(pitch)
-        return jnp.array([[one, zero, -sp], [zero, cr, sr * cp], [zero, -sr, cr * cp]])
+        return ((1.0, 0.0, -sp), (0.0, cr, sr * cp), (0.0, -sr, cr * cp))
 
     def regularity(self, angles: Vector3) -> Scalar:
         return jnp.cos(angles[1])

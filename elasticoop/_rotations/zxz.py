@@ -27,12 +27,11 @@ class ZXZ(AbstractRotation):
         psi, theta, phi = angles
         return rot_z(psi) @ rot_x(theta) @ rot_z(phi)
 
-    def angular_velocity_matrix(self, angles: Vector3) -> Matrix3:
-        _, theta, phi = angles
+    def angular_velocity_rows(self, angles) -> tuple:
+        theta, phi = angles[1], angles[2]
         st, ct = jnp.sin(theta), jnp.cos(theta)
         sp, cp = jnp.sin(phi), jnp.cos(phi)
-        zero, one = jnp.zeros_like(theta), jnp.ones_like(theta)
-        return jnp.array([[st * sp, cp, zero], [st * cp, -sp, zero], [ct, zero, one]])
+        return ((st * sp, cp, 0.0), (st * cp, -sp, 0.0), (ct, 0.0, 1.0))
 
     def regularity(self, angles: Vector3) -> Scalar:
         return jnp.sin(angles[1])

@@ -1,0 +1,117 @@
+"""Cost of a trajectory-loss gradient relative to one forward simulation.
+
+    python benchmarks/gradients.py [--quick] [--json out.json]
+
+Loss: sum of squared deviations of Y at the output times from a target trajectory,
+for `default_scenario()` (3 s, 301 outputs; 0.1 s and the default adjoint only at
+smoke size), as a function of all stiffness and damping parameters
+(2 connections x 12 = 24). Forward:
+`simulate` + loss, jitted. Gradients: `jax.grad` with
+`RecursiveCheckpointAdjoint` (the default, checkpoints chosen by diffrax from
+`max_steps`, and with `checkpoints=1000`), `jax.grad` with `BacksolveAdjoint`
+(if diffrax accepts it here), and `jax.jacfwd` with `ForwardMode` (24 tangents).
+Times are of compiled calls, best of a few, measured side by side; gradients are
+cross-checked against each other.
+"""
+
+import sys
+import time
+from pathlib import Path
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _timing import best_time  # noqa: E402
+
+import elasticoop as eo  # noqa: E402
+from elasticoop._scenario import default_scenario  # noqa: E402
+
+
+def make_loss(scenario, adjoint):
+    s = scenario
+    target = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).y
+    target = target + 1e-3  # a target the parameters do not reach
+
+    def loss(params):
+        model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
+        traj = eo.simulate(
+            model,
+            s.y_init,
+            s.ydot_init,
+            s.ts,
+            forces=s.forces,
+            adjoint=adjoint,
+            throw=False,
+        )
+        return jnp.sum((traj.y - target) ** 2)
+
+    return loss
+
+
+def run(quick: bool = False) -> dict:
+    s = default_scenario()
+    if quick:
+        s = eqx.tree_at(lambda sc: sc.ts, s, s.ts[:11])
+    params = (s.model.stiffness, s.model.damping)
+    repeats = 1 if quick else 3
+    forward = jax.jit(make_loss(s, diffrax.RecursiveCheckpointAdjoint()))
+    t_forward = best_time(forward, params, repeats=repeats)
+    variants = {
+        "reverse_RecursiveCheckpointAdjoint": (
+            jax.grad,
+            diffrax.RecursiveCheckpointAdjoint(),
+        ),
+        "reverse_RecursiveCheckpointAdjoint_1000": (
+            jax.grad,
+            diffrax.RecursiveCheckpointAdjoint(checkpoints=1000),
+        ),
+        "reverse_BacksolveAdjoint": (jax.grad, diffrax.BacksolveAdjoint()),
+        "forward_ForwardMode_jacfwd": (jax.jacfwd, diffrax.ForwardMode()),
+    }
+    if quick:
+        variants = {k: variants[k] for k in ("reverse_RecursiveCheckpointAdjoint",)}
+    rows, grads = [], {}
+    for name, (transform, adjoint) in variants.items():
+        fn = jax.jit(transform(make_loss(s, adjoint)))
+        start = time.perf_counter()
+        try:
+            g = jax.block_until_ready(fn(params))
+        except Exception as err:  # an adjoint diffrax does not support here
+            rows.append({"method": name, "error": f"{type(err).__name__}: {err}"[:200]})
+            continue
+        compile_s = time.perf_counter() - start
+        t = best_time(fn, params, repeats=repeats)
+        grads[name] = np.concatenate([np.ravel(x) for x in g])
+        rows.append(
+            {
+                "method": name,
+                "wall_ms": 1e3 * t,
+                "over_forward": t / t_forward,
+                "first_call_s": compile_s,
+            }
+        )
+    base = grads.get("reverse_RecursiveCheckpointAdjoint")
+    for row in rows:
+        g = grads.get(row["method"])
+        if g is not None and base is not None:
+            row["max_rel_diff_vs_checkpoint"] = float(
+                np.max(np.abs(g - base)) / np.max(np.abs(base))
+            )
+    return {
+        "problem": f"default scenario, {float(s.ts[-1]):.1f} s, {len(s.ts)} outputs, "
+        "24 parameters (stiffness, damping), Tsit5 rtol 1e-8",
+        "forward_ms": 1e3 * t_forward,
+        "rows": rows,
+        "target": "reverse-mode gradient <= 4x forward",
+    }
+
+
+if __name__ == "__main__":
+    from _cli import main
+
+    main(run, __doc__)

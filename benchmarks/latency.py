@@ -1,0 +1,70 @@
+"""First-call latency of the default scenario in fresh processes.
+
+    python benchmarks/latency.py [--json out.json]
+
+Wall time of `python -c` importing elasticoop and simulating
+`default_scenario()` (3 bodies, 2 grasps, 3 s, Tsit5 at rtol 1e-8), first and second
+call, in three fresh processes: without the persistent compilation cache, with an
+empty cache (cold) and with the cache it filled (warm).
+"""
+
+import json
+import subprocess
+import sys
+import tempfile
+
+_CHILD = r"""
+import json, sys, time
+start = time.perf_counter()
+import jax
+import elasticoop as eo
+from elasticoop._cache import enable_compilation_cache
+from elasticoop._scenario import default_scenario
+if sys.argv[1] != "none":
+    enable_compilation_cache(sys.argv[1])
+imported = time.perf_counter()
+s = default_scenario()
+def once():
+    t = time.perf_counter()
+    traj = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces)
+    jax.block_until_ready(traj.y)
+    return time.perf_counter() - t
+first = once()
+second = once()
+print(json.dumps({"import_s": imported - start, "first_call_s": first,
+                  "second_call_s": second,
+                  "process_s": time.perf_counter() - start}))
+"""
+
+
+def _fresh_process(cache: str) -> dict:
+    out = subprocess.run(
+        [sys.executable, "-c", _CHILD, cache],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run(quick: bool = False) -> dict:
+    if quick:  # fresh processes take tens of seconds: not at smoke size
+        return {"problem": "skipped at smoke size (three fresh processes)"}
+    with tempfile.TemporaryDirectory() as folder:
+        rows = [
+            {"cache": "off", **_fresh_process("none")},
+            {"cache": "cold (empty)", **_fresh_process(folder)},
+            {"cache": "warm", **_fresh_process(folder)},
+        ]
+    return {
+        "problem": "default_scenario(): 3 bodies, 2 grasps, 3 s, Tsit5 rtol 1e-8; "
+        "fresh python process per row",
+        "rows": rows,
+        "target": "process_s <= 5 s with a warm cache",
+    }
+
+
+if __name__ == "__main__":
+    from _cli import main
+
+    main(run, __doc__)

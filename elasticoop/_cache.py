@@ -1,0 +1,67 @@
+"""JAX's persistent compilation cache, for command-line runs."""
+
+import contextlib
+import os
+import pathlib
+
+import equinox._errors
+import jax
+
+# Where the cache lives unless a path or $ELASTICOOP_CACHE_DIR says otherwise.
+DEFAULT_CACHE_DIR = pathlib.Path("~/.cache/elasticoop/jax").expanduser()
+
+
+def enable_compilation_cache(path=None) -> pathlib.Path:
+    """Store compiled XLA executables on disk, so that a new process running a
+    model of the same shapes loads them instead of compiling again.
+
+    **Arguments:**
+
+    - `path`: the cache folder (created if missing). Default: the environment
+      variable `ELASTICOOP_CACHE_DIR`, else `~/.cache/elasticoop/jax`.
+
+    **Returns:** the folder used.
+
+    Every compiled function is cached, however quick its compilation. JAX refuses
+    to store an executable that contains a host callback, and `equinox.error_if`
+    (used by diffrax, optimistix and lineax for runtime checks inside compiled
+    code) compiles to one; so for the rest of the process those checks are
+    switched to equinox's `"nan"` mode (a failed check returns NaN instead of
+    raising), as the environment variable `EQX_ON_ERROR=nan` would. `simulate`
+    still reports early stops through `Trajectory.status` and raises
+    `SimulationError` for concrete results; only runtime checks of traced inputs
+    and `throw=True` under `jit` become NaN instead of an error. Call this before
+    the first simulation.
+    """
+    if path is None:
+        path = os.environ.get("ELASTICOOP_CACHE_DIR") or DEFAULT_CACHE_DIR
+    path = pathlib.Path(path).expanduser()
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"path must be a folder, got the file {str(path)!r}")
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    equinox._errors.EQX_ON_ERROR = "nan"
+    return path
+
+
+@contextlib.contextmanager
+def compilation_cache(path=None):
+    """`enable_compilation_cache` for the duration of a `with` block: the JAX
+    settings and equinox's error mode are restored afterwards (the command line
+    uses this, so that running a command inside a larger program leaves that
+    program's settings alone)."""
+    names = (
+        "jax_compilation_cache_dir",
+        "jax_persistent_cache_min_compile_time_secs",
+        "jax_persistent_cache_min_entry_size_bytes",
+    )
+    saved = {name: getattr(jax.config, name) for name in names}
+    saved_mode = equinox._errors.EQX_ON_ERROR
+    try:
+        yield enable_compilation_cache(path)
+    finally:
+        for name, value in saved.items():
+            jax.config.update(name, value)
+        equinox._errors.EQX_ON_ERROR = saved_mode
