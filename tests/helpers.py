@@ -1,5 +1,8 @@
 """Shared test models, states and closed forms (the appendix, MODEL.md's fixes)."""
 
+import functools
+
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -120,3 +123,28 @@ def zxz_w_angular(A, B, C, theta, phi, dpsi, dtheta, dphi):
         + 0.5 * dtheta**2 * (A - B) * s2p
     )
     return np.array([psi_row, theta_row, phi_row])
+
+
+def small_two_body_model():
+    """One object and one grasp on a rest-length link (the export and plot tests)."""
+    up = UPRIGHT["zxz"]
+    bodies = [eo.RigidBody(1.0, (0.01,) * 3), eo.RigidBody(0.2, (1e-3,) * 3)]
+    link = eo.Connection(0, 1, (1e3,) * 3 + (5.0,) * 3, (5.0,) * 3 + (0.05,) * 3)
+    y0 = jnp.array([[0.0, 0.0, 1.0, *up], [0.2, 0.0, 1.0, *up]])
+    return eo.MobileModel(bodies, [link]).with_unloaded_state(y0), y0
+
+
+SMALL_TS = jnp.linspace(0.0, 0.2, 11)
+
+
+@functools.cache
+def two_body_run():
+    """A short run of `small_two_body_model` with a lift force, and the same motion
+    viewed through the linearized (Appendix A) model: enough for layout, export and
+    plot checks, with one compilation of `simulate`."""
+    model, y0 = small_two_body_model()
+    ydot0 = jnp.zeros_like(y0).at[1, 2].set(0.5)
+    lift = [[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]]
+    traj = eo.simulate(model, y0, ydot0, SMALL_TS, forces=lift)
+    immobile = eqx.tree_at(lambda t: t.model, traj, eo.linearize_mobile(model, y0))
+    return traj, immobile

@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 import xarray as xr
+from helpers import two_body_run
 
-import elasticoop as eo
 from elasticoop._export import (
     dataset_to_frame,
     summarize,
@@ -18,30 +18,17 @@ from elasticoop._export import (
     write_outputs,
 )
 
-UP = (0.0, np.pi / 2, 0.0)
 TS = jnp.linspace(0.0, 0.2, 11)
-
-
-def small_model():
-    bodies = [eo.RigidBody(1.0, (0.01,) * 3), eo.RigidBody(0.2, (1e-3,) * 3)]
-    link = eo.Connection(0, 1, (1e3,) * 3 + (5.0,) * 3, (5.0,) * 3 + (0.05,) * 3)
-    y0 = jnp.array([[0.0, 0.0, 1.0, *UP], [0.2, 0.0, 1.0, *UP]])
-    return eo.MobileModel(bodies, [link]).with_unloaded_state(y0), y0
 
 
 @pytest.fixture(scope="module")
 def traj():
-    model, y0 = small_model()
-    ydot0 = jnp.zeros_like(y0).at[1, 2].set(0.5)
-    return eo.simulate(model, y0, ydot0, TS, forces=[[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]])
+    return two_body_run()[0]
 
 
 @pytest.fixture(scope="module")
-def immobile_traj(traj):
-    # The same motion viewed through the linearized (Appendix A) model: enough for
-    # layout and export checks, and no second compilation of `simulate`.
-    model, y0 = small_model()
-    return eqx.tree_at(lambda t: t.model, traj, eo.linearize_mobile(model, y0))
+def immobile_traj():
+    return two_body_run()[1]
 
 
 def test_dataset_layout_units_and_parameters(traj):
