@@ -23,7 +23,6 @@ import xarray as xr
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from tqdm import tqdm
 
-from .._simulate import simulate
 from .._trajectory import Status
 from . import distributed, store as _store
 from .sampling import draw, lhs_strata
@@ -55,18 +54,7 @@ def _one_sample(study: Study, index, strata_row) -> dict:
         fallback = 1.0 if p.relative else p.nominal(study.inputs)
         inputs = p.apply(inputs, jnp.where(finite, raw[p.name], fallback))
         values[p.name] = jnp.where(finite, p.nominal(inputs), raw[p.name])
-    traj = simulate(
-        inputs.model,
-        inputs.y_init,
-        inputs.ydot_init,
-        study.ts,
-        forces=inputs.forces,
-        solver=study.solver,
-        rtol=study.rtol,
-        atol=study.atol,
-        max_steps=study.max_steps,
-        throw=False,
-    )
+    traj = study.simulate(inputs)
     outputs = {
         name: jnp.where(finite, out(traj), jnp.nan)
         for name, out in study.outputs.items()

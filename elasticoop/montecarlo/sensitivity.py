@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
-from .._simulate import simulate
 from .._trajectory import Status
 from .execution import _variables
 from .outputs import COORDINATES
@@ -33,19 +32,7 @@ def _outputs_at(study: Study, values: dict) -> tuple[dict, jax.Array]:
     inputs = study.inputs
     for p in study.parameters:
         inputs = eqx.tree_at(p._select, inputs, values[p.name])
-    traj = simulate(
-        inputs.model,
-        inputs.y_init,
-        inputs.ydot_init,
-        study.ts,
-        forces=inputs.forces,
-        solver=study.solver,
-        rtol=study.rtol,
-        atol=study.atol,
-        max_steps=study.max_steps,
-        adjoint=diffrax.ForwardMode(),
-        throw=False,
-    )
+    traj = study.simulate(inputs, adjoint=diffrax.ForwardMode())
     return {name: out(traj) for name, out in study.outputs.items()}, traj.status
 
 

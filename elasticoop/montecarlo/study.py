@@ -12,6 +12,7 @@ import numpy as np
 
 from .._forces import as_force, check_force_shape
 from .._models import AbstractElasticModel
+from .._simulate import simulate
 from .._validation import as_float_array
 from .outputs import Output
 from .parameters import _RESERVED, Inputs, Parameter
@@ -208,6 +209,22 @@ class Study:
     def n_dims(self) -> int:
         """Number of scalar uncertain parameters (the dimension of the design)."""
         return int(sum(np.prod(s, dtype=int) for s in self.leaf_shapes.values()))
+
+    def simulate(self, inputs: Inputs, **overrides):
+        """`simulate` of one sample's `inputs` with the study's times, solver and
+        tolerances (never raising: failures are reported in `Trajectory.status`)."""
+        kwargs = dict(
+            forces=inputs.forces,
+            solver=self.solver,
+            rtol=self.rtol,
+            atol=self.atol,
+            max_steps=self.max_steps,
+            throw=False,
+        )
+        kwargs.update(overrides)
+        return simulate(
+            inputs.model, inputs.y_init, inputs.ydot_init, self.ts, **kwargs
+        )
 
     def describe(self) -> dict:
         """A JSON-able description of the study (recorded in the store's manifest)."""
