@@ -349,4 +349,5 @@ def _solve(
         event_time=event_time,
         event_index=index.astype(jnp.int32),
         reaction=None if reaction is None else mask(reaction),
+        n_steps=jnp.asarray(sol.stats["num_steps"], jnp.int32),
     )

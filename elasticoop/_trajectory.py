@@ -41,6 +41,8 @@ class Trajectory(eqx.Module):
     - `reaction`: with prescribed coordinates, the generalized forces that realise
       the prescribed motion, shape `(times, bodies, 6)` (zero on the free
       coordinates); `None` otherwise.
+    - `n_steps`: the number of solver steps taken, accepted and rejected (what
+      `max_steps` bounds).
 
     Under `jax.vmap` every field gains a leading batch axis.
     """
@@ -55,6 +57,7 @@ class Trajectory(eqx.Module):
     event_time: jax.Array
     event_index: jax.Array
     reaction: StateSeries | None = None
+    n_steps: jax.Array | None = None
 
     def to_xarray(self, body_names=None):
         """The trajectory as an `xarray.Dataset` (dims `time`, `body`, `coordinate`),

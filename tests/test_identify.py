@@ -104,6 +104,23 @@ def test_noise_free_recovery_from_2x_off(two_body_runs):
     stderr = jax.tree.leaves(result.stderr)
     assert [s.shape for s in stderr] == [(1, 6), (1, 6)]
     assert "stiffness[0-1].x" in result.report()
+    # noise-free data: the equation-error start simulates closer than 2x off
+    assert any("started from the equation-error start" in n for n in result.notes)
+
+
+def test_start_is_the_candidate_that_fits_better():
+    """With noisy samples the equation-error estimate is off by far more than the
+    noise allows; starting from the true values, `identify` must keep them."""
+    model, y0 = _two_body()
+    ((traj, clean),) = _experiments(model, y0, TS_SMALL, seeds=(7,))
+    rng = np.random.default_rng(99)
+    y = np.asarray(traj.y) + 1e-5 * rng.normal(size=traj.y.shape)
+    e = Experiment(TS_SMALL, y, y0, clean.ydot_init, forces=_lift(model), sigma=1e-5)
+    linear = equation_error(model, e, STIFFNESS, window=7)
+    assert np.max(np.abs(_flat(linear, STIFFNESS) / _flat(model, STIFFNESS) - 1)) > 0.01
+    result = identify(model, e, STIFFNESS, window=7, max_steps=1, progress=False)
+    np.testing.assert_array_equal(result.initial, _flat(model, STIFFNESS))
+    assert any("started from the model's values" in n for n in result.notes)
 
 
 def test_equation_error_exact_derivatives(two_body_runs):

@@ -1,5 +1,6 @@
 """`identify`: fit free model parameters to measured motion (output error)."""
 
+import dataclasses
 import time
 
 import diffrax
@@ -25,6 +26,11 @@ from .result import IdentificationResult
 from .uncertainty import gauss_newton_uncertainty
 
 METHODS = ("levenberg-marquardt", "lbfgs")
+# Solver steps allowed for the simulations at the start, and the step budget of
+# every later simulation as a multiple of the steps the start needed.
+START_MAX_STEPS = 100_000
+STEP_BUDGET_FACTOR = 8
+MIN_BUDGET = 4096
 
 
 def identify(
@@ -42,7 +48,7 @@ def identify(
     solver: diffrax.AbstractSolver | None = None,
     sim_rtol: float = 1e-8,
     sim_atol: float = 1e-10,
-    max_sim_steps: int = 100_000,
+    max_sim_steps: int | None = None,
     gimbal_tol: float = GIMBAL_TOL,
     link_tol: float = LINK_TOL,
     window: int = 21,
@@ -70,8 +76,13 @@ def identify(
       with forward-mode sensitivities, `diffrax.ForwardMode`), `"lbfgs"`
       (`optax.lbfgs` with reverse-mode gradients through `simulate`), or any optax
       optimiser, e.g. `optax.adam(1e-2)`.
-    - `init`: `"equation_error"` (default: start from `equation_error`, entries
-      outside the transform's range kept at the model's values) or `"model"`.
+    - `init`: `"equation_error"` (default) or `"model"`. With
+      `"equation_error"` the fit starts from the `equation_error` estimate
+      (entries outside the transform's range taken from the model) when its
+      simulated loss is not above that of the model's values, and from the
+      model's values otherwise: with noisy data the differentiated samples can
+      spoil the linear estimate, and the start that fits better is kept (a note
+      in the result says which).
     - `transform`: reparameterisation of the free leaves: `"log"` (default),
       `"softplus"`, `"identity"`, an `AbstractTransform` such as
       `Bounded(lower, upper)`, or one of these per selected leaf.
@@ -83,6 +94,12 @@ def identify(
     - `progress`: print iteration, loss and gradient norm while fitting.
     - `solver`, `sim_rtol`, `sim_atol`, `max_sim_steps`, `gimbal_tol`, `link_tol`:
       passed to `simulate` (as `solver`, `rtol`, `atol`, `max_steps`, ...).
+      `max_sim_steps=None` (default) allows the start's simulations 100 000
+      steps and every later one 8x the steps the start needed (at least 4096,
+      rounded up to a power of 2, so that fits of similar problems share their
+      compiled functions): a trial point that needs more is far off
+      (much stiffer) and is rejected like a failed simulation, instead of
+      costing a long integration.
     - `window`, `polyorder`: Savitzky-Golay smoothing of the equation-error start.
     - `rcond`, `max_relative_stderr`: identifiability thresholds (see
       `gauss_newton_uncertainty`).
@@ -104,35 +121,76 @@ def identify(
     for name, value in (("xtol", xtol), ("ftol", ftol)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a number >= 0, got {value!r}")
+    if max_sim_steps is not None and not (
+        isinstance(max_sim_steps, int) and max_sim_steps >= 1
+    ):
+        raise ValueError(
+            f"max_sim_steps must be a positive integer or None, got {max_sim_steps!r}"
+        )
+    if init not in ("equation_error", "model"):
+        raise ValueError(f"init must be 'equation_error' or 'model', got {init!r}")
     notes = []
+    options = SimulationOptions(
+        solver=solver,
+        rtol=float(sim_rtol),
+        atol=float(sim_atol),
+        max_steps=START_MAX_STEPS if max_sim_steps is None else max_sim_steps,
+        gimbal_tol=float(gimbal_tol),
+        link_tol=float(link_tol),
+    )
+    problem = make_problem(model, free, experiments, options)
     start = free.current(model)
+    candidates = []  # (label, parameters), evaluated by their simulated loss
     if init == "equation_error":
         guess = free.current(
             equation_error(
                 model, experiments, where, window=window, polyorder=polyorder
             )
         )
-        initial, outside = _within_range(free, guess, start)
+        guess, outside = _within_range(free, guess, start)
         if outside:
             notes.append(
-                "equation-error start outside the parameter range for "
+                "equation-error estimate outside the parameter range for "
                 + ", ".join(outside)
-                + "; started those from the model's values"
+                + "; took the model's values there"
             )
-    elif init == "model":
-        initial = start
-    else:
-        raise ValueError(f"init must be 'equation_error' or 'model', got {init!r}")
-    u0 = free.unconstrained(initial)
-    options = SimulationOptions(
-        solver=solver,
-        rtol=float(sim_rtol),
-        atol=float(sim_atol),
-        max_steps=int(max_sim_steps),
-        gimbal_tol=float(gimbal_tol),
-        link_tol=float(link_tol),
-    )
-    problem = make_problem(model, free, experiments, options)
+        candidates.append(("the equation-error start", guess))
+    try:
+        free.unconstrained(start)
+        candidates.append(("the model's values", start))
+    except ValueError:
+        if init == "model":
+            raise
+    evaluated = []
+    for label, p in candidates:
+        u = free.unconstrained(p)
+        value, ok, steps = _evaluate(jnp.asarray(u), problem)
+        value = float(value) if np.all(np.asarray(ok)) else np.inf
+        evaluated.append((value, label, p, u, np.asarray(ok), np.asarray(steps)))
+    # the equation-error start wins ties (it is listed first)
+    best = min(range(len(evaluated)), key=lambda k: evaluated[k][0])
+    _, label, initial, u0, ok, steps = evaluated[best]
+    if len(evaluated) > 1:
+        notes.append(
+            f"started from {label} (loss "
+            + " vs ".join(f"{v:.6g} for {name}" for v, name, *_ in evaluated)
+            + ")"
+        )
+    if not np.all(np.asarray(ok)):
+        _raise_start_failure(problem, np.asarray(ok))
+    if max_sim_steps is None:
+        # Trial points that need many more steps than the start are far off (much
+        # stiffer, or lightly damped at high frequency): treat them as failed
+        # rather than integrating them to the end.
+        budget = STEP_BUDGET_FACTOR * int(np.max(np.asarray(steps)))
+        budget = min(START_MAX_STEPS, max(MIN_BUDGET, 1 << (budget - 1).bit_length()))
+        options = dataclasses.replace(options, max_steps=budget)
+        problem = make_problem(model, free, experiments, options)
+        notes.append(
+            f"simulations limited to {budget} solver steps "
+            f"({STEP_BUDGET_FACTOR}x those at the start); a trial point needing "
+            f"more is rejected"
+        )
     common = dict(
         xtol=xtol,
         ftol=ftol,
@@ -145,7 +203,7 @@ def identify(
     else:
         trace = optax_minimise(problem, u0, optimizer, **common)
     if not trace.loss_history:
-        _raise_start_failure(problem, u0, experiments)
+        _raise_start_failure(problem, np.zeros(len(experiments), bool))
     if trace.jacobian is None:
         r, J = _residuals_and_jacobian(jnp.asarray(trace.u), problem)
         trace.residual, trace.jacobian = np.asarray(r), np.asarray(J)
@@ -175,7 +233,7 @@ def identify(
         start=np.asarray(start),
         uncertainty=unc,
         n_iterations=trace.n_iterations,
-        n_simulations=trace.n_simulations,
+        n_simulations=trace.n_simulations + len(evaluated) * len(experiments),
         n_rejected=trace.n_rejected,
         n_failed_trials=trace.n_failed_trials,
         method=method_name,
@@ -222,12 +280,14 @@ def _within_range(free, guess, fallback):
 
 
 @eqx.filter_jit
-def _start_status(u, problem):
-    return residuals_by_experiment(u, problem)[1]
+def _evaluate(u, problem):
+    """The loss at `u`, and per experiment whether it simulated and its steps."""
+    parts, ok, steps = residuals_by_experiment(u, problem)
+    value = 0.5 * sum(jnp.sum(r**2) for r in parts)
+    return value, ok, steps
 
 
-def _raise_start_failure(problem, u0, experiments):
-    ok = np.asarray(_start_status(jnp.asarray(u0), problem))
+def _raise_start_failure(problem, ok):
     bad = [problem.order[k] for k in np.flatnonzero(~ok)]
     raise ValueError(
         f"the simulation at the starting parameters fails for experiments {bad} "

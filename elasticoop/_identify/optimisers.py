@@ -5,7 +5,8 @@
   with the Jacobian from forward-mode sensitivities (one integration carrying one
   tangent per parameter, `diffrax.ForwardMode`). A trial step whose loss is not
   lower (an infinite loss for a failed simulation) is rejected by the trust region,
-  which shrinks the step.
+  which shrinks the step; such a trial costs one plain simulation, as its
+  Jacobian is not computed.
 - `optax_minimise`: any optax optimiser on $\\tfrac12\\sum r^2$ with reverse-mode
   gradients through `simulate` (diffrax's `RecursiveCheckpointAdjoint`); the
   default `optax.lbfgs()` uses a zoom line search, which treats an infinite or NaN
@@ -24,7 +25,13 @@ import numpy as np
 import optax
 import optimistix as optx
 
-from .residuals import Problem, loss, residuals_fwd, with_scaling
+from .residuals import (
+    Problem,
+    loss,
+    residuals_fwd,
+    with_jacobian_loss_limit,
+    with_scaling,
+)
 
 # Marquardt's initial damping: lambda_0 = TAU * max diag(J^T J) at the start.
 TAU = 1e-3
@@ -158,6 +165,8 @@ def levenberg_marquardt(
         v, state, value, gnorm, accepted, _, result = _lm_step(
             solver, v, state, problem
         )
+        # Trial points with a higher loss are rejected: skip their Jacobians.
+        problem = with_jacobian_loss_limit(problem, value)
         u = u0_arr + u_scale * v
         trace.n_simulations += n_experiments
         value = float(value) / scale**2
@@ -236,7 +245,12 @@ def optax_minimise(
     u = jnp.asarray(u0)
     trace = Trace(u=np.asarray(u))
     show = _Progress(progress, f"optax {getattr(optimizer, '__name__', '')}".strip())
-    state = optimizer.init(u)
+    # optax initialises some scalars weakly typed and updates them strongly
+    # typed; fix their types now so that the step compiles once.
+    state = jax.tree.map(
+        lambda x: jnp.asarray(x, x.dtype) if eqx.is_array(x) else x,
+        optimizer.init(u),
+    )
     linesearch = optax.tree.get(state, "value") is not None
     if not linesearch:
         value, grad = _value_and_grad(u, problem)

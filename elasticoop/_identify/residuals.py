@@ -71,14 +71,19 @@ class Problem(eqx.Module):
     scale: jax.Array  # a constant factor on all residuals (solver conditioning)
     u_offset: jax.Array  # u = u_offset + u_scale * v, v the solver's variables
     u_scale: jax.Array
+    # The Jacobian is computed only where the loss is at most this (+inf: always);
+    # see `residuals_and_jacobian`.
+    jacobian_loss_limit: jax.Array
 
 
 def make_problem(model, free, experiments, options) -> Problem:
     groups = batch_experiments(experiments)
     order = tuple(k for indices, _ in groups for k in indices)
     batches = tuple(_prepare(stacked) for _, stacked in groups)
-    one, zeros = jnp.asarray(1.0), jnp.zeros(free.size)
-    return Problem(model, free, batches, order, options, one, zeros, zeros + 1.0)
+    one, zeros = jnp.ones((), jnp.float64), jnp.zeros(free.size, jnp.float64)
+    return Problem(
+        model, free, batches, order, options, one, zeros, zeros + 1.0, one * jnp.inf
+    )
 
 
 def with_scaling(problem: Problem, scale, u_offset, u_scale) -> Problem:
@@ -90,6 +95,14 @@ def with_scaling(problem: Problem, scale, u_offset, u_scale) -> Problem:
         lambda p: (p.scale, p.u_offset, p.u_scale),
         problem,
         tuple(jnp.asarray(x, jnp.float64) for x in values),
+    )
+
+
+def with_jacobian_loss_limit(problem: Problem, limit) -> Problem:
+    """The same problem computing Jacobians only where the loss (of the scaled
+    residuals) is at most `limit` (a traced value: no recompilation)."""
+    return eqx.tree_at(
+        lambda p: p.jacobian_loss_limit, problem, jnp.asarray(limit, jnp.float64)
     )
 
 
@@ -116,10 +129,11 @@ def _simulate_batch(model, data: _Data, options: SimulationOptions, adjoint):
 
 def residuals_by_experiment(u, problem: Problem, adjoint=None):
     """Residuals per batch, each `(batch, times, bodies, 6)` (or twice that length
-    along the last axis with measured $\\dot Y$), and whether each simulation
-    succeeded, `(experiments,)` in batch order."""
+    along the last axis with measured $\\dot Y$), whether each simulation
+    succeeded and how many solver steps it took, both `(experiments,)` in batch
+    order."""
     model = problem.free.apply(problem.model, u)
-    out, ok_all = [], []
+    out, ok_all, steps = [], [], []
     for data in problem.batches:
         traj = _simulate_batch(model, data, problem.options, adjoint)
         r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
@@ -132,12 +146,13 @@ def residuals_by_experiment(u, problem: Problem, adjoint=None):
         r = jnp.where(ok[:, None, None, None], problem.scale * r, jnp.inf)
         out.append(r)
         ok_all.append(ok)
-    return out, jnp.concatenate(ok_all)
+        steps.append(traj.n_steps)
+    return out, jnp.concatenate(ok_all), jnp.concatenate(steps)
 
 
 def residuals(u, problem: Problem, adjoint=None) -> jax.Array:
     """All residuals as one flat vector ($+\\infty$ for failed simulations)."""
-    parts, _ = residuals_by_experiment(u, problem, adjoint)
+    parts, _, _ = residuals_by_experiment(u, problem, adjoint)
     return jnp.concatenate([r.reshape(-1) for r in parts])
 
 
@@ -151,15 +166,29 @@ def loss(u, problem: Problem) -> jax.Array:
 def residuals_and_jacobian(u, problem: Problem):
     """$r(u)$ and $J = \\partial r/\\partial u$ by forward-mode sensitivities
     (`jax.jacfwd` through `simulate` with `diffrax.ForwardMode()`): one integration
-    carrying one tangent per free parameter. Rows of failed simulations are zero in
-    $J$ (and $+\\infty$ in $r$)."""
+    carrying one tangent per free parameter.
+
+    The residuals are computed first without sensitivities. Where a simulation
+    fails ($+\\infty$ residuals, e.g. a trial point beyond the step budget), or
+    the loss $\\tfrac12\\sum r^2$ exceeds `problem.jacobian_loss_limit` (a trial
+    point that a descent method rejects anyway), the costly integration with
+    sensitivities is skipped and $J$ is returned as zero."""
 
     def fn(v):
         r = residuals(v, problem, diffrax.ForwardMode())
         return r, r
 
-    J, r = jax.jacfwd(fn, has_aux=True)(u)
-    J = jnp.where(jnp.isfinite(r)[:, None], J, 0.0)
+    r = residuals(u, problem)
+    value = 0.5 * jnp.sum(r**2)
+    # a relative margin for round-off between this sum and the solver's own
+    wanted = jnp.all(jnp.isfinite(r)) & (
+        value <= problem.jacobian_loss_limit * (1.0 + 1e-6)
+    )
+    J = jax.lax.cond(
+        wanted,
+        lambda: jax.jacfwd(fn, has_aux=True)(u)[0],
+        lambda: jnp.zeros(r.shape + u.shape, r.dtype),
+    )
     return r, J
 
 
