@@ -265,9 +265,9 @@ def _log(name, r):
 
 
 def run(quick: bool, scipy_nfev: int | None = None) -> dict:
-    """The benchmark. L-BFGS is capped at 100 iterations (a run allowing 1000 had
-    not finished after 55 minutes on a 2-core CPU); `quick` uses 0.4 s experiments,
-    30 L-BFGS iterations and one SciPy evaluation."""
+    """The benchmark. L-BFGS is capped at 100 iterations (about 0.7 s each on a
+    2-core CPU); `quick` uses 0.4 s experiments, 30 L-BFGS iterations and one SciPy
+    evaluation."""
     model, y0 = model_and_state()
     duration = 0.4 if quick else 2.0
     exps = experiments(model, y0, duration)
