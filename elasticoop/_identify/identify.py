@@ -164,9 +164,8 @@ def identify(
     evaluated = []
     for label, p in candidates:
         u = free.unconstrained(p)
-        value, ok, steps = _evaluate(jnp.asarray(u), problem)
-        value = float(value) if np.all(np.asarray(ok)) else np.inf
-        evaluated.append((value, label, p, u, np.asarray(ok), np.asarray(steps)))
+        value, ok, steps = _evaluate(jnp.asarray(u), problem)  # inf if failed
+        evaluated.append((float(value), label, p, u, np.asarray(ok), np.asarray(steps)))
     # the equation-error start wins ties (it is listed first)
     best = min(range(len(evaluated)), key=lambda k: evaluated[k][0])
     _, label, initial, u0, ok, steps = evaluated[best]
@@ -176,13 +175,13 @@ def identify(
             + " vs ".join(f"{v:.6g} for {name}" for v, name, *_ in evaluated)
             + ")"
         )
-    if not np.all(np.asarray(ok)):
-        _raise_start_failure(problem, np.asarray(ok))
+    if not np.all(ok):
+        _raise_start_failure(problem, ok)
     if max_sim_steps is None:
         # Trial points that need many more steps than the start are far off (much
         # stiffer, or lightly damped at high frequency): treat them as failed
         # rather than integrating them to the end.
-        budget = STEP_BUDGET_FACTOR * int(np.max(np.asarray(steps)))
+        budget = STEP_BUDGET_FACTOR * int(np.max(steps))
         budget = min(START_MAX_STEPS, max(MIN_BUDGET, 1 << (budget - 1).bit_length()))
         options = dataclasses.replace(options, max_steps=budget)
         problem = make_problem(model, free, experiments, options)
@@ -203,7 +202,11 @@ def identify(
     else:
         trace = optax_minimise(problem, u0, optimizer, **common)
     if not trace.loss_history:
-        _raise_start_failure(problem, np.zeros(len(experiments), bool))
+        raise ValueError(
+            f"the simulation with sensitivities fails at the start, although the "
+            f"plain one succeeds (method {method_name}); start from other values "
+            f"or pass another solver"
+        )
     if trace.jacobian is None:
         r, J = _residuals_and_jacobian(jnp.asarray(trace.u), problem)
         trace.residual, trace.jacobian = np.asarray(r), np.asarray(J)
