@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import best_time  # noqa: E402
 
 import elasticoop as eo  # noqa: E402
-from elasticoop._scenario import default_scenario  # noqa: E402
+from elasticoop import default_scenario  # noqa: E402
 
 
 def make_loss(scenario, adjoint):

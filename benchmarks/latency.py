@@ -19,7 +19,7 @@ start = time.perf_counter()
 import jax
 import elasticoop as eo
 from elasticoop._cache import enable_compilation_cache
-from elasticoop._scenario import default_scenario
+from elasticoop import default_scenario
 if sys.argv[1] != "none":
     enable_compilation_cache(sys.argv[1])
 imported = time.perf_counter()

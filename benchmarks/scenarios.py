@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import elasticoop as eo
-from elasticoop._scenario import default_scenario
+from elasticoop import default_scenario
 
 # Stiff variant: grasp bodies 10x lighter, connections 10x stiffer and 3x more damped.
 STIFF_MASS, STIFF_INERTIA = 0.03, 1.2e-4

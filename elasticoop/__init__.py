@@ -11,13 +11,10 @@ jax.config.update("jax_enable_x64", True)
 
 from . import montecarlo as montecarlo  # noqa: E402
 from ._analysis import (  # noqa: E402
-    AbstractMotion as AbstractMotion,
     Equilibrium as Equilibrium,
     LinearModel as LinearModel,
     LoadDistribution as LoadDistribution,
     Modes as Modes,
-    PrescribedMotion as PrescribedMotion,
-    SplineMotion as SplineMotion,
     StateSpace as StateSpace,
     grasp_matrix as grasp_matrix,
     grasp_wrenches as grasp_wrenches,
@@ -25,19 +22,19 @@ from ._analysis import (  # noqa: E402
     linearize as linearize,
     load_distribution as load_distribution,
     modes as modes,
-    plot_mode_shapes as plot_mode_shapes,
     static_equilibrium as static_equilibrium,
     trajectory_load_distribution as trajectory_load_distribution,
 )
 from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
 from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
 from ._config import ScenarioError as ScenarioError, load_scenario as load_scenario  # noqa: E402, I001
-from ._export import trajectory_to_xarray as trajectory_to_xarray  # noqa: E402
+from ._examples import default_scenario as default_scenario  # noqa: E402
 from ._forces import (  # noqa: E402
     AbstractForce as AbstractForce,
     ConstantForce as ConstantForce,
     FeedbackForce as FeedbackForce,
     SampledForce as SampledForce,
+    PoseTracking as PoseTracking,
     generalized_wrench as generalized_wrench,
 )
 from ._identify import (  # noqa: E402
@@ -53,8 +50,10 @@ from ._identify import (  # noqa: E402
     identify as identify,
     savitzky_golay as savitzky_golay,
 )
+from ._io.xarray import trajectory_to_xarray as trajectory_to_xarray  # noqa: E402
 from ._lagrange import (  # noqa: E402
     accelerations as accelerations,
+    constrained_accelerations as constrained_accelerations,
     damping_forces as damping_forces,
     elastic_forces as elastic_forces,
     inverse_dynamics as inverse_dynamics,
@@ -71,10 +70,21 @@ from ._models import (  # noqa: E402
     deflection as deflection,
     linearize_mobile as linearize_mobile,
 )
+from ._motion import (  # noqa: E402
+    AbstractMotion as AbstractMotion,
+    PrescribedMotion as PrescribedMotion,
+    SplineMotion as SplineMotion,
+)
+from ._options import (  # noqa: E402
+    GIMBAL_TOL as GIMBAL_TOL,
+    LINK_TOL as LINK_TOL,
+    SimulationOptions as SimulationOptions,
+)
 from ._plotting import (  # noqa: E402
     plot_coordinates as plot_coordinates,
     plot_elastic_wrench as plot_elastic_wrench,
     plot_energy as plot_energy,
+    plot_mode_shapes as plot_mode_shapes,
     plot_snapshots as plot_snapshots,
     save_animation as save_animation,
 )
@@ -87,14 +97,11 @@ from ._rotations import (  # noqa: E402
 from ._scenario import (  # noqa: E402
     PrescribedSpec as PrescribedSpec,
     Scenario as Scenario,
-    default_scenario as default_scenario,
 )
 from ._simulate import (  # noqa: E402
-    GIMBAL_TOL as GIMBAL_TOL,
-    LINK_TOL as LINK_TOL,
     SimulationError as SimulationError,
     simulate as simulate,
 )
-from ._trajectory import Status as Status, Trajectory as Trajectory  # noqa: E402
-
-__version__ = "0.1.0"
+from ._status import Status as Status  # noqa: E402
+from ._trajectory import Trajectory as Trajectory  # noqa: E402
+from ._version import __version__ as __version__  # noqa: E402

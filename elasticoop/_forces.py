@@ -5,11 +5,14 @@ from collections.abc import Callable
 
 import diffrax
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
-from ._custom_types import Scalar, State, Vector3
+from jaxtyping import Array, Float
+
+from ._custom_types import Scalar, State, Times, Vector3
 from ._rotations import get_rotation
-from ._validation import as_float_array, require
+from ._validation import as_float_array, check_times, is_concrete
 
 
 class AbstractForce(eqx.Module):
@@ -22,13 +25,8 @@ class AbstractForce(eqx.Module):
     """
 
     @abc.abstractmethod
-    def __call__(self, t: Scalar, y: State, ydot: State) -> jnp.ndarray:
+    def __call__(self, t: Scalar, y: State, ydot: State) -> Float[Array, "rows 6"]:
         pass
-
-    @property
-    def jump_ts(self):
-        """Times at which the force has kinks (handed to the step-size controller)."""
-        return None
 
 
 class ConstantForce(AbstractForce):
@@ -53,14 +51,7 @@ class SampledForce(AbstractForce):
     F: jnp.ndarray
 
     def __init__(self, ts, F):
-        ts = as_float_array(ts, "SampledForce.ts", (None,))
-        if ts.shape[0] < 2:
-            raise ValueError(
-                f"SampledForce.ts needs at least 2 samples, got {ts.shape[0]}"
-            )
-        ts = require(
-            ts, (ts[1:] > ts[:-1]).all(), "SampledForce.ts must be increasing", ts
-        )
+        ts = check_times(ts, "SampledForce.ts")
         self.ts = jnp.asarray(ts)
         self.F = jnp.asarray(
             as_float_array(F, "SampledForce.F", (ts.shape[0], None, 6))
@@ -70,7 +61,8 @@ class SampledForce(AbstractForce):
         return diffrax.LinearInterpolation(ts=self.ts, ys=self.F).evaluate(t)
 
     @property
-    def jump_ts(self):
+    def jump_ts(self) -> Times:
+        """The sample times: the kinks of the interpolant."""
         return self.ts
 
 
@@ -81,6 +73,12 @@ class FeedbackForce(AbstractForce):
 
     def __call__(self, t, y, ydot):
         return jnp.asarray(self.fn(t, y, ydot), dtype=jnp.float64)
+
+
+def jump_times(force: AbstractForce | None) -> Times | None:
+    """Times at which `force` has kinks, handed to the step-size controller
+    (the samples of a `SampledForce`; none otherwise)."""
+    return force.jump_ts if isinstance(force, SampledForce) else None
 
 
 def as_force(forces) -> AbstractForce | None:
@@ -140,10 +138,68 @@ def pad_to_bodies(F: jnp.ndarray, n_bodies: int) -> jnp.ndarray:
     return F
 
 
-def check_force_shape(shape, n_bodies: int) -> None:
+def check_force_shape(shape, n_bodies: int, owner: str = "") -> None:
+    """Generalized forces must have shape `(m, 6)` or `(m + 1, 6)`."""
     m = n_bodies - 1
     if tuple(shape) not in ((m, 6), (n_bodies, 6)):
         raise ValueError(
-            f"forces must give shape ({m}, 6) for the m = {m} contact bodies "
+            f"{owner}forces must give shape ({m}, 6) for the m = {m} contact bodies "
             f"(or ({n_bodies}, 6) including the object), got {tuple(shape)}"
+        )
+
+
+def check_force(forces, y_init, ydot_init, ts, owner: str = "") -> AbstractForce | None:
+    """`forces` as an `AbstractForce` (or `None`), checked against the system: its
+    value at `ts[0]` must have shape `(m, 6)` or `(m + 1, 6)`, and a
+    `SampledForce` must cover the times `ts` (checked where both are concrete).
+    `owner` prefixes the field name in errors (`"Study."` gives `Study.forces`)."""
+    force = as_force(forces)
+    if force is None:
+        return None
+    n_bodies = y_init.shape[0]
+    check_force_shape(
+        jax.eval_shape(force, ts[0], y_init, ydot_init).shape, n_bodies, owner
+    )
+    if isinstance(force, SampledForce) and is_concrete(force.ts, ts):
+        lo, hi = float(force.ts[0]), float(force.ts[-1])
+        if float(ts[0]) < lo or float(ts[-1]) > hi:
+            raise ValueError(
+                f"{owner}ts spans [{float(ts[0])}, {float(ts[-1])}] s but the "
+                f"{owner}forces (SampledForce) samples only cover [{lo}, {hi}] s"
+            )
+    return force
+
+
+def minimum_jerk(s):
+    """$10s^3 - 15s^4 + 6s^5$ on $[0, 1]$, held at 0 and 1 outside."""
+    s = jnp.clip(s, 0.0, 1.0)
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
+
+
+class PoseTracking(AbstractForce):
+    """Manipulators as PD controllers on the grasp poses plus a weight feedforward.
+
+    Grasp body $i$ is driven towards $Y_{i}^{ref}(t) = Y_{i}(0) + h\\,s(t/T)\\,e_z$
+    ($s$ the minimum-jerk profile, its rate by forward-mode autodiff):
+    $F_i = F^{ff} + K_p (Y_i^{ref} - Y_i) + K_d (\\dot Y_i^{ref} - \\dot Y_i)$,
+    gains per coordinate (translations [N/m], Euler angles [N m/rad]).
+    """
+
+    y_ref: Float[Array, "m 6"]  # initial grasp poses
+    feedforward: Float[Array, "m 6"]
+    kp: Float[Array, "6"]
+    kd: Float[Array, "6"]
+    height: Scalar
+    duration: Scalar
+
+    def __call__(self, t, y, ydot):
+        lift = jnp.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+        s, rate = jax.jvp(
+            lambda t: minimum_jerk(t / self.duration), (t,), (jnp.ones_like(t),)
+        )
+        ref = self.y_ref + self.height * s * lift
+        ref_rate = self.height * rate * lift
+        grasps, rates = y[1:], ydot[1:]
+        return (
+            self.feedforward + self.kp * (ref - grasps) + self.kd * (ref_rate - rates)
         )

@@ -26,6 +26,7 @@ derivatives cheap:
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._body import kinetic_energy
 from ._custom_types import State
@@ -125,6 +126,23 @@ def damping_forces(model: AbstractElasticModel, y: State, ydot: State) -> State:
     return jax.grad(model.dissipation, argnums=1)(y, ydot)
 
 
+def _balance(model: AbstractElasticModel, y: State, ydot: State, applied: State):
+    """The one assembly of $W\\ddot Y = G + F - w$: every use of the equations of
+    motion (free, prescribed and inverse dynamics) starts here.
+
+    **Returns:** `(W, b, damping)`: the entries `W[i, k]` of the blocks $W_i$
+    (arrays `(bodies,)`), the right-hand side $b = G + F - w$ as six arrays
+    `(bodies,)`, and $\\partial R/\\partial\\dot Y$ `(bodies, 6)`.
+    """
+    q, v = _coordinates(y), _coordinates(ydot)
+    elastic, damping = model.restoring_forces(y, ydot)
+    rhs = model.gravity_forces() + applied - elastic - damping
+    W = _mass_matrix_columns(model, q, v, _COORDINATES)
+    c = _velocity_terms(model, q, v)
+    b = tuple(rhs[:, k] - c[k] for k in _COORDINATES)
+    return W, b, damping
+
+
 def accelerations(model: AbstractElasticModel, y: State, ydot: State, applied: State):
     """Solve $W\\ddot Y = G + F - w$ per body (3x3 blocks, closed-form $LDL^T$).
 
@@ -135,16 +153,72 @@ def accelerations(model: AbstractElasticModel, y: State, ydot: State, applied: S
     $\\partial R/\\partial\\dot Y$
     (whose product with $\\dot Y$ is the dissipated power $2R$).
     """
-    q, v = _coordinates(y), _coordinates(ydot)
-    elastic, damping = model.restoring_forces(y, ydot)
-    rhs = model.gravity_forces() + applied - elastic - damping
-    W = _mass_matrix_columns(model, q, v, _COORDINATES)
-    c = _velocity_terms(model, q, v)
-    b = tuple(rhs[:, k] - c[k] for k in _COORDINATES)
+    W, b, damping = _balance(model, y, ydot, applied)
     yddot = []
     for block in _BLOCKS:
         yddot += _ldl_solve3(W, block, tuple(b[k] for k in block))
     return jnp.stack(yddot, -1), damping
+
+
+def constrained_accelerations(
+    model: AbstractElasticModel,
+    y: State,
+    ydot: State,
+    applied: State,
+    mask: np.ndarray,
+    yddot_prescribed: State,
+):
+    """Accelerations and reactions with the coordinates in `mask` prescribed.
+
+    With $f$ the free and $p$ the prescribed coordinates of each body, the free rows
+    of $W\\ddot Y + w = G + F$ are solved for $\\ddot Y_f$ given $\\ddot Y_p$,
+
+    $$W_{ff}\\ddot Y_f = (G + F - w)_f - W_{fp}\\ddot Y_p,$$
+
+    and the prescribed rows give the reactions, the generalized forces the drive
+    must add to realise the motion: $Q_p = [W\\ddot Y + w - G - F]_p$ ($Q_f = 0$).
+    Each 3x3 block is solved as the symmetric positive definite system
+    $\\operatorname{diag}(W_{ff}, I)$ by the same closed-form $LDL^T$ as the free
+    dynamics; with nothing prescribed it is exactly `accelerations`.
+
+    **Arguments:** as `accelerations`, plus `mask`, a concrete bool array
+    `(bodies, 6)` (true: prescribed), and `yddot_prescribed` `(bodies, 6)` (only
+    its prescribed entries are used).
+
+    **Returns:** `(yddot, damping, reaction)`, each `(bodies, 6)`, where `damping`
+    is $\\partial R/\\partial\\dot Y$.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    W, b, damping = _balance(model, y, ydot, applied)
+    a = _coordinates(yddot_prescribed)
+    # Only coordinates prescribed for some body enter the elimination (a Python-level
+    # choice on the concrete mask: nothing prescribed costs nothing).
+    driven = {k: mask[:, k] for k in _COORDINATES if mask[:, k].any()}
+    yddot = []
+    for block in _BLOCKS:
+        S = dict(W)
+        r = []
+        for i in block:
+            ri = b[i]
+            for k, p in driven.items():
+                if k in block:
+                    ri = ri - jnp.where(p, W[i, k] * a[k], 0.0)
+            r.append(jnp.where(driven[i], a[i], ri) if i in driven else ri)
+        for i in block:
+            for k in block:
+                p = driven.get(i, False) | driven.get(k, False)
+                if np.any(p):
+                    S[i, k] = jnp.where(p, float(i == k), W[i, k])
+        yddot += _ldl_solve3(S, block, tuple(r))
+    reaction = [
+        jnp.where(
+            driven[i], sum(W[i, k] * yddot[k] for k in _BLOCKS[i // 3]) - b[i], 0.0
+        )
+        if i in driven
+        else jnp.zeros_like(b[i])
+        for i in _COORDINATES
+    ]
+    return jnp.stack(yddot, -1), damping, jnp.stack(reaction, -1)
 
 
 def inverse_dynamics(
@@ -152,17 +226,9 @@ def inverse_dynamics(
 ) -> State:
     """Generalized forces that realise a motion: $F = W\\ddot Y + w - G$,
     shape `(bodies, 6)`."""
-    q, v = _coordinates(y), _coordinates(ydot)
-    W = _mass_matrix_columns(model, q, v, _COORDINATES)
+    W, b, _ = _balance(model, y, ydot, jnp.zeros_like(y))
     a = _coordinates(yddot)
-    inertial = jnp.stack(
-        [sum(W[i, k] * a[k] for k in _COORDINATES) for i in _COORDINATES], -1
-    )
-    elastic, damping = model.restoring_forces(y, ydot)
-    return (
-        inertial
-        + velocity_terms(model, y, ydot)
-        + damping
-        + elastic
-        - model.gravity_forces()
+    return jnp.stack(
+        [sum(W[i, k] * a[k] for k in _BLOCKS[i // 3]) - b[i] for i in _COORDINATES],
+        -1,
     )

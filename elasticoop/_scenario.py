@@ -1,67 +1,19 @@
-"""A complete study set-up (`Scenario`), the pose-tracking manipulators, and the
-built-in scenario (loaded from the packaged `scenarios/beam_lift.toml`)."""
+"""A complete simulation set-up as one value: `Scenario` (scenario files are read
+into one by `elasticoop.load_scenario`)."""
 
 import dataclasses
-import importlib.resources
 
-import diffrax
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._analysis import PrescribedMotion, SplineMotion
 from ._forces import AbstractForce
 from ._models import AbstractElasticModel
+from ._motion import PrescribedMotion, SplineMotion
+from ._naming import default_body_names
+from ._options import SimulationOptions
 from ._simulate import simulate
 from ._trajectory import Trajectory
-
-DEFAULT_EXAMPLE = "beam_lift"
-
-# Solver names of scenario files -> diffrax solvers.
-SOLVERS = {
-    "tsit5": diffrax.Tsit5,
-    "dopri5": diffrax.Dopri5,
-    "dopri8": diffrax.Dopri8,
-    "bosh3": diffrax.Bosh3,
-    "heun": diffrax.Heun,
-    "kvaerno3": diffrax.Kvaerno3,
-    "kvaerno5": diffrax.Kvaerno5,
-}
-
-
-def minimum_jerk(s):
-    """$10s^3 - 15s^4 + 6s^5$ on $[0, 1]$, held at 0 and 1 outside."""
-    s = jnp.clip(s, 0.0, 1.0)
-    return s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
-
-
-class PoseTracking(AbstractForce):
-    """Manipulators as PD controllers on the grasp poses plus a weight feedforward.
-
-    Grasp body $i$ is driven towards $Y_{i}^{ref}(t) = Y_{i}(0) + h\\,s(t/T)\\,e_z$
-    ($s$ the minimum-jerk profile):
-    $F_i = F^{ff} + K_p (Y_i^{ref} - Y_i) + K_d (\\dot Y_i^{ref} - \\dot Y_i)$,
-    gains per coordinate (translations [N/m], Euler angles [N m/rad]).
-    """
-
-    y_ref: jnp.ndarray  # (m, 6) initial grasp poses
-    feedforward: jnp.ndarray  # (m, 6)
-    kp: jnp.ndarray  # (6,)
-    kd: jnp.ndarray  # (6,)
-    height: float
-    duration: float
-
-    def __call__(self, t, y, ydot):
-        s = minimum_jerk(t / self.duration)
-        tau = jnp.clip(t / self.duration, 0.0, 1.0)
-        rate = 30.0 * tau**2 * (1.0 - tau) ** 2 / self.duration
-        lift = jnp.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-        ref = self.y_ref + self.height * s * lift
-        ref_rate = self.height * rate * lift
-        grasps, rates = y[1:], ydot[1:]
-        return (
-            self.feedforward + self.kp * (ref - grasps) + self.kd * (ref_rate - rates)
-        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,10 +73,14 @@ class Scenario(eqx.Module):
     source: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
-        if self.solver not in SOLVERS:
-            raise ValueError(
-                f"Scenario.solver must be one of {sorted(SOLVERS)}, got {self.solver!r}"
-            )
+        self.options  # validates solver, rtol, atol and max_steps
+
+    @property
+    def options(self) -> SimulationOptions:
+        """The solver settings as `SimulationOptions`."""
+        return SimulationOptions(
+            self.solver, self.rtol, self.atol, self.max_steps, owner="Scenario"
+        )
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -135,52 +91,8 @@ class Scenario(eqx.Module):
         """Run `elasticoop.simulate` with this scenario's model, initial state,
         times, forces, solver and tolerances; keyword arguments override them
         (e.g. `progress_meter=diffrax.TqdmProgressMeter()` where supported)."""
-        kwargs = dict(
-            forces=self.forces,
-            solver=SOLVERS[self.solver](),
-            rtol=self.rtol,
-            atol=self.atol,
-            max_steps=self.max_steps,
-        )
+        kwargs = dict(forces=self.forces, **self.options.kwargs())
         if self.prescribed is not None:
             kwargs["prescribed"] = self.prescribed.motion(self.ts)
         kwargs.update(overrides)
         return simulate(self.model, self.y_init, self.ydot_init, self.ts, **kwargs)
-
-
-def default_body_names(n_bodies: int) -> tuple[str, ...]:
-    return ("object",) + tuple(f"contact{i}" for i in range(1, n_bodies))
-
-
-def example_files() -> dict[str, object]:
-    """The example scenarios shipped with elasticoop: name -> TOML file (a
-    `importlib.resources` traversable)."""
-    folder = importlib.resources.files("elasticoop") / "scenarios"
-    return {
-        f.name[: -len(".toml")]: f
-        for f in sorted(folder.iterdir(), key=lambda f: f.name)
-        if f.name.endswith(".toml")
-    }
-
-
-def load_example(name: str) -> Scenario:
-    """Load a packaged example scenario by name (see `example_files()`)."""
-    from ._config import load_scenario
-
-    files = example_files()
-    if name not in files:
-        raise ValueError(f"no example scenario {name!r}; examples: {sorted(files)}")
-    with importlib.resources.as_file(files[name]) as path:
-        return load_scenario(path)
-
-
-def default_scenario(n_output: int = 301) -> Scenario:
-    """Two manipulators lift a 1 m, 2 kg beam by 0.2 m in 2 s through elastic grasps
-    at its ends (3 bodies, 2 connections, ZXZ angles at $\\theta = \\pi/2$, so the
-    body x axis is the beam's axis), then hold it for 1 s; read from the packaged
-    `scenarios/beam_lift.toml`. `n_output` evenly spaced output samples."""
-    scenario = load_example(DEFAULT_EXAMPLE)
-    if n_output != scenario.ts.shape[0]:
-        ts = jnp.linspace(scenario.ts[0], scenario.ts[-1], n_output)
-        scenario = eqx.tree_at(lambda s: s.ts, scenario, ts)
-    return scenario

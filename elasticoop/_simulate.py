@@ -4,26 +4,16 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optimistix as optx
 
-from ._analysis.constrained import constrained_accelerations
-from ._analysis.motion import PrescribedMotion
-from ._forces import (
-    AbstractForce,
-    SampledForce,
-    as_force,
-    check_force_shape,
-    pad_to_bodies,
-)
-from ._lagrange import accelerations
+from ._forces import AbstractForce, check_force, jump_times, pad_to_bodies
+from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
-from ._trajectory import Status, Trajectory, describe
-from ._validation import as_float_array, is_concrete, require
-
-# Documented thresholds of the two singularities a run stops at.
-GIMBAL_TOL = 1e-3  # |sin theta| (ZXZ) or |cos pitch| (RPY)
-LINK_TOL = 1e-3  # |r_i - r_j| relative to the rest length rho_0
+from ._motion import PrescribedMotion
+from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
+from ._status import Status, status_message
+from ._trajectory import Trajectory
+from ._validation import as_float_array, check_times, is_concrete
 
 
 class SimulationError(RuntimeError):
@@ -95,14 +85,18 @@ def simulate(
         raise ValueError(
             f"model must be an ImmobileModel or MobileModel, got {type(model).__name__}"
         )
+    options = SimulationOptions(
+        "tsit5" if solver is None else solver,
+        rtol,
+        atol,
+        max_steps,
+        gimbal_tol,
+        link_tol,
+    )
     n = model.n_bodies
-    y_init = as_float_array(y_init, "y_init", (n, 6))
-    ydot_init = as_float_array(ydot_init, "ydot_init", (n, 6))
-    ts = as_float_array(ts, "ts", (None,))
-    if ts.shape[0] < 2:
-        raise ValueError(f"ts needs at least 2 times, got {ts.shape[0]}")
-    ts = require(ts, (ts[1:] > ts[:-1]).all(), "ts must be strictly increasing", ts)
-    y_init, ydot_init, ts = (jnp.asarray(x) for x in (y_init, ydot_init, ts))
+    y_init = jnp.asarray(as_float_array(y_init, "y_init", (n, 6)))
+    ydot_init = jnp.asarray(as_float_array(ydot_init, "ydot_init", (n, 6)))
+    ts = jnp.asarray(check_times(ts, "ts"))
     if prescribed is not None:
         if not isinstance(prescribed, PrescribedMotion):
             raise ValueError(
@@ -113,48 +107,25 @@ def simulate(
         y_p, ydot_p, _ = prescribed.state(ts[0])
         y_init = jnp.where(prescribed.mask, y_p, y_init)
         ydot_init = jnp.where(prescribed.mask, ydot_p, ydot_init)
-    force = as_force(forces)
-    if force is not None:
-        shape = jax.eval_shape(force, ts[0], y_init, ydot_init).shape
-        check_force_shape(shape, n)
-        if isinstance(force, SampledForce) and is_concrete(force.ts, ts):
-            lo, hi = float(force.ts[0]), float(force.ts[-1])
-            if float(ts[0]) < lo or float(ts[-1]) > hi:
-                raise ValueError(
-                    f"ts spans [{float(ts[0])}, {float(ts[-1])}] s but the "
-                    f"SampledForce samples only cover [{lo}, {hi}] s"
-                )
-    if max_steps is None or int(max_steps) < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    for name, value in (("rtol", rtol), ("atol", atol)):
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive number, got {value!r}")
+    force = check_force(forces, y_init, ydot_init, ts)
     if is_concrete(y_init):
-        reg = np.abs(np.asarray(_regularity(model, y_init)))
-        if np.any(reg < gimbal_tol):
-            body = int(np.argmin(reg))
-            raise ValueError(
-                f"y_init: body {body} starts at gimbal lock "
-                f"({model.rotation.singularity_name} = {reg[body]:.3g} < "
-                f"{gimbal_tol}) with convention {model.convention!r}, where the "
-                f"mass matrix is singular; choose other angles or the other "
-                f"convention"
-            )
+        model.rotation.check_regular(y_init[:, 3:], options.gimbal_tol, "y_init")
 
+    kw = options.kwargs()
     traj = _solve(
         model,
         y_init,
         ydot_init,
         ts,
         force,
-        diffrax.Tsit5() if solver is None else solver,
-        float(rtol),
-        float(atol),
-        int(max_steps),
+        kw["solver"],
+        kw["rtol"],
+        kw["atol"],
+        kw["max_steps"],
         dt0,
         diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
-        float(gimbal_tol),
-        float(link_tol),
+        kw["gimbal_tol"],
+        kw["link_tol"],
         prescribed,
         diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
     )
@@ -162,7 +133,7 @@ def simulate(
         return traj
     if is_concrete(traj.status):
         if int(traj.status) != Status.SUCCESS:
-            raise SimulationError(describe(traj), traj)
+            raise SimulationError(status_message(traj), traj)
     elif throw:
         y = eqx.error_if(
             traj.y,
@@ -259,7 +230,7 @@ def _solve(
         cond_fns, root_finder=optx.Newton(rtol=1e-12, atol=1e-12), direction=False
     )
     controller = diffrax.PIDController(rtol=rtol, atol=atol)
-    jump_ts = None if force is None else force.jump_ts
+    jump_ts = jump_times(force)
     if jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
     zero = jnp.zeros((), dtype=y_init.dtype)

@@ -1,7 +1,5 @@
 """The result of `simulate` and the quantities derived from it."""
 
-import enum
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -9,16 +7,7 @@ import jax.numpy as jnp
 from ._custom_types import StateSeries, Times
 from ._lagrange import elastic_forces
 from ._models import AbstractElasticModel, MobileModel
-
-
-class Status(enum.IntEnum):
-    """Outcome of one simulation (`Trajectory.status`)."""
-
-    SUCCESS = 0
-    GIMBAL_LOCK = 1
-    LINK_COLLAPSED = 2
-    MAX_STEPS_REACHED = 3
-    SOLVER_FAILED = 4
+from ._status import Status, status_message
 
 
 class Trajectory(eqx.Module):
@@ -62,7 +51,9 @@ class Trajectory(eqx.Module):
     def to_xarray(self, body_names=None):
         """The trajectory as an `xarray.Dataset` (dims `time`, `body`, `coordinate`),
         with units and the model parameters as attributes."""
-        from ._export import trajectory_to_xarray
+        # The one import against the layers (results -> files): a convenience
+        # method users expect on the result; the converter lives in `_io`.
+        from ._io.xarray import trajectory_to_xarray
 
         return trajectory_to_xarray(self, body_names=body_names)
 
@@ -114,9 +105,20 @@ class Trajectory(eqx.Module):
             )
         return self._over_time(self.model.connection_wrench, self.y)
 
+    def grasp_loads(self) -> tuple[list[tuple[int, int]], jax.Array]:
+        """The elastic load at each grasp: `(pairs, wrench)` with `wrench` of shape
+        `(times, grasps, 6)`. Per connection $(i, j)$ for a `MobileModel`
+        (`elastic_wrench`, on body $i$), per contact body $k$ for an
+        `ImmobileModel` ($-\\partial\\Pi/\\partial Y_k$, pair $(0, k)$)."""
+        if isinstance(self.model, MobileModel):
+            pairs = [(int(i), int(j)) for i, j in jnp.asarray(self.model.pairs)]
+            return pairs, self.elastic_wrench()
+        pairs = [(0, k) for k in range(1, self.model.n_bodies)]
+        return pairs, -self.elastic_forces()[..., 1:, :]
+
     def message(self) -> str:
         """A sentence describing `status` (for a single, un-batched trajectory)."""
-        return describe(self)
+        return status_message(self)
 
 
 @eqx.filter_jit
@@ -124,33 +126,3 @@ def _map_over_time(fn, *fields):
     # `fn` is a bound method of the model (an equinox pytree): compiled once per
     # method and model structure.
     return jax.vmap(fn)(*fields)
-
-
-def describe(traj: Trajectory) -> str:
-    status = Status(int(traj.status))
-    t = float(traj.event_time)
-    k = int(traj.event_index)
-    if status == Status.SUCCESS:
-        return "the simulation reached the final time"
-    if status == Status.GIMBAL_LOCK:
-        rotation = traj.model.rotation
-        other = "rpy" if rotation.name == "zxz" else "zxz"
-        return (
-            f"gimbal lock: body {k} reached the singularity of the "
-            f"{rotation.name.upper()} Euler angles ({rotation.singularity_name} "
-            f"below the threshold) at t = {t:.9g} s; the mass matrix is singular "
-            f"there. Use convention={other!r} or start further from the singularity."
-        )
-    if status == Status.LINK_COLLAPSED:
-        i, j = (int(v) for v in jnp.asarray(traj.model.pairs)[k])
-        return (
-            f"connection {k} between bodies {i} and {j} collapsed (|r_i - r_j| fell "
-            f"below link_tol x rest length) at t = {t:.9g} s; its deflection has no "
-            f"direction at zero length"
-        )
-    if status == Status.MAX_STEPS_REACHED:
-        return (
-            f"the solver reached max_steps at t = {t:.9g} s; raise max_steps, loosen "
-            f"rtol/atol or use an implicit solver for stiff grasps"
-        )
-    return f"the solver failed at t = {t:.9g} s (step size too small or NaN)"

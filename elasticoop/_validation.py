@@ -71,3 +71,22 @@ def require(x, ok, message: str, shown=None):
             raise ValueError(message + suffix)
         return x
     return eqx.error_if(x, jnp.logical_not(jnp.all(ok)), message)
+
+
+def check_times(ts, name: str):
+    """A time grid: a float64 array `(times,)` of at least 2 finite, strictly
+    increasing times (NumPy when concrete, JAX when traced; a traced grid is checked
+    at run time). Errors name `name` and, when concrete, the first bad sample."""
+    ts = as_float_array(ts, name, (None,))
+    if ts.shape[0] < 2:
+        raise ValueError(f"{name} needs at least 2 times, got {ts.shape[0]}")
+    if isinstance(ts, np.ndarray):
+        bad = np.nonzero(ts[1:] <= ts[:-1])[0]
+        if bad.size:
+            k = int(bad[0])
+            raise ValueError(
+                f"{name} must be strictly increasing, but {name}[{k}] = {ts[k]} "
+                f"and {name}[{k + 1}] = {ts[k + 1]}"
+            )
+        return ts
+    return require(ts, (ts[1:] > ts[:-1]).all(), f"{name} must be strictly increasing")

@@ -133,11 +133,11 @@ BAD_SIMULATE = {
     ),
     "sampled force too short": (
         dict(forces=eo.SampledForce(jnp.array([0.0, 0.05]), jnp.zeros((2, 2, 6)))),
-        "SampledForce samples only cover",
+        r"SampledForce\) samples only cover",
     ),
     "start at gimbal lock": (
         dict(y_init=Y.at[1, 4].set(0.0)),
-        r"body 1 starts at gimbal lock",
+        r"y_init: body 1 starts at gimbal lock",
     ),
     "rtol": (dict(rtol=-1.0), "rtol must be a positive number"),
     "model": (dict(model="beam"), "model must be an ImmobileModel or MobileModel"),

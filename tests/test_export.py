@@ -11,12 +11,9 @@ import pytest
 import xarray as xr
 from helpers import two_body_run
 
-from elasticoop._export import (
-    dataset_to_frame,
-    summarize,
-    trajectory_to_xarray,
-    write_outputs,
-)
+from elasticoop._io.files import write_outputs
+from elasticoop._io.summary import summarize
+from elasticoop._io.xarray import dataset_to_frame, trajectory_to_xarray
 
 TS = jnp.linspace(0.0, 0.2, 11)
 

@@ -40,7 +40,7 @@ def test_sampled_force_interpolates_linearly():
 
 
 def test_bad_force_inputs():
-    with pytest.raises(ValueError, match="SampledForce.ts must be increasing"):
+    with pytest.raises(ValueError, match="SampledForce.ts must be strictly increasing"):
         eo.SampledForce(jnp.array([0.0, 1.0, 0.5]), jnp.zeros((3, 2, 6)))
     with pytest.raises(
         ValueError, match=r"SampledForce.F must have shape \(2, any, 6\)"

@@ -3,7 +3,8 @@
 import subprocess
 import sys
 
-from elasticoop._main import format_summary, run_default
+from elasticoop._cli.demo import run_default
+from elasticoop._io.summary import format_summary
 
 # The balance closes to the solver's tolerance (rtol 1e-8) times the energies.
 BALANCE_RTOL = 1e-6

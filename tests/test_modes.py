@@ -127,7 +127,7 @@ def test_state_space_table_and_plot():
     )
     md = eo.modes(lin)
     table = md.table()
-    assert "f [Hz]" in table and "body0.x" in table and len(table.splitlines()) == 7
+    assert "f [Hz]" in table and "object.x" in table and len(table.splitlines()) == 7
     fig = eo.plot_mode_shapes(md, count=3)
     axes = fig.axes
     assert len(axes) == 3

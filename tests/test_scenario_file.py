@@ -410,7 +410,7 @@ IMMOBILE_MALFORMED = [
         "K",
         "positive semidefinite",
     ),
-    ("K of full rank", "K_full.csv", "[immobile]", "K", "rank K = 12 exceeds 6m = 6"),
+    ("K of full rank", "K_full.csv", "[immobile]", "K", "rank K must be <= 6m = 6"),
     ("K file missing", "K_none.csv", "[immobile]", "K", "not found"),
     ("K file of text", "K_text.csv", "[immobile]", "K", "could not be read"),
 ]
@@ -503,7 +503,7 @@ def test_not_toml_and_missing_file(tmp_path, capsys):
 
 
 def test_default_scenario_comes_from_the_packaged_file():
-    from elasticoop._scenario import default_scenario, example_files, load_example
+    from elasticoop._examples import default_scenario, example_files, load_example
 
     assert "beam_lift" in example_files()
     s = default_scenario()

@@ -1,4 +1,3 @@
-from .constrained import constrained_accelerations as constrained_accelerations
 from .equilibrium import (
     Equilibrium as Equilibrium,
     static_equilibrium as static_equilibrium,
@@ -17,9 +16,3 @@ from .load_distribution import (
     trajectory_load_distribution as trajectory_load_distribution,
 )
 from .modes import Modes as Modes, modes as modes
-from .motion import (
-    AbstractMotion as AbstractMotion,
-    PrescribedMotion as PrescribedMotion,
-    SplineMotion as SplineMotion,
-)
-from .plot_modes import plot_mode_shapes as plot_mode_shapes

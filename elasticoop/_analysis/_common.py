@@ -1,4 +1,4 @@
-"""Helpers shared by the analysis functions: masks, free coordinates, forces."""
+"""Helpers shared by the analysis functions: masks and constant forces."""
 
 import jax.numpy as jnp
 import numpy as np
@@ -27,19 +27,3 @@ def constant_forces(forces, n_bodies: int):
     arr = as_float_array(forces, "forces", (None, 6))
     check_force_shape(arr.shape, n_bodies)
     return pad_to_bodies(jnp.asarray(arr), n_bodies)
-
-
-def coordinate_names(n_bodies: int, convention: str, body_names=None) -> list[str]:
-    """Names `{body}.{coordinate}` of the stacked $Y$, in order (bodies named
-    `body0`, `body1`, ... unless `body_names` are given)."""
-    angles = (
-        ("psi", "theta", "phi") if convention == "zxz" else ("roll", "pitch", "yaw")
-    )
-    coords = ("x", "y", "z", *angles)
-    if body_names is None:
-        body_names = [f"body{i}" for i in range(n_bodies)]
-    if len(body_names) != n_bodies:
-        raise ValueError(
-            f"body_names must name the {n_bodies} bodies, got {list(body_names)}"
-        )
-    return [f"{name}.{c}" for name in body_names for c in coords]

@@ -9,7 +9,8 @@ from .._custom_types import State
 from .._lagrange import mass_matrix
 from .._models import AbstractElasticModel
 from .._validation import as_float_array
-from ._common import as_mask, coordinate_names
+from .._naming import body_names as body_names_of, dof_names
+from ._common import as_mask
 
 
 class StateSpace(eqx.Module):
@@ -92,7 +93,7 @@ def linearize(
     )
     index = np.ix_(free, free)
     B = jnp.eye(6 * n)[free]
-    names = coordinate_names(n, model.convention, body_names)
+    names = dof_names(body_names_of(body_names, n), model.convention)
     return LinearModel(
         M=0.5 * (M + M.T)[index],
         C=0.5 * (D + D.T)[index],

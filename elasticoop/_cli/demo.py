@@ -1,5 +1,11 @@
-"""`elasticoop demo` (also `python -m elasticoop`): the built-in scenario."""
+"""`elasticoop demo` (also `python -m elasticoop`): the built-in scenario, the
+main job."""
 
+import dataclasses
+import time
+
+from .._examples import default_scenario
+from .._io.summary import format_summary, scenario_summary
 from ._common import EXIT_OK, common_options, say, simulate_scenario, write_results
 
 NAME = "demo"
@@ -25,13 +31,16 @@ def register(subparsers) -> None:
     parser.set_defaults(func=execute)
 
 
+def run_default(rtol: float = 1e-8, atol: float = 1e-10) -> dict:
+    """Simulate `default_scenario()` and return its summary as a dict."""
+    scenario = dataclasses.replace(default_scenario(), rtol=rtol, atol=atol)
+    start = time.perf_counter()
+    traj = scenario.simulate()
+    traj.y.block_until_ready()
+    return scenario_summary(scenario, traj, time.perf_counter() - start)
+
+
 def execute(args) -> int:
-    import dataclasses
-
-    from .._export import scenario_summary
-    from .._main import format_summary
-    from .._scenario import default_scenario
-
     scenario = default_scenario()
     tolerances = {k: getattr(args, k) for k in ("rtol", "atol")}
     scenario = dataclasses.replace(

@@ -6,6 +6,7 @@ import pathlib
 import shutil
 import tomllib
 
+from .._examples import example_files
 from ._common import EXIT_OK, common_options, say
 
 NAME = "examples"
@@ -29,8 +30,6 @@ def register(subparsers) -> None:
 
 
 def execute(args) -> int:
-    from .._scenario import example_files
-
     files = example_files()
     if args.copy:
         target = pathlib.Path(args.copy)

@@ -5,8 +5,9 @@ import pathlib
 
 import numpy as np
 
-from .._analysis import linearize, modes, plot_mode_shapes, static_equilibrium
+from .._analysis import linearize, modes, static_equilibrium
 from .._forces import ConstantForce
+from .._plotting import plot_mode_shapes
 from ._common import EXIT_OK, common_options, load, say
 
 NAME = "modes"

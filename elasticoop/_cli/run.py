@@ -1,6 +1,7 @@
 """`elasticoop run SCENARIO -o OUTDIR`: simulate a scenario file and write the
 trajectory (netCDF, CSV), a JSON summary and plots."""
 
+from .._io.summary import format_summary, scenario_summary
 from ._common import (
     EXIT_OK,
     common_options,
@@ -57,9 +58,6 @@ def execute(args) -> int:
     paths = write_results(scenario, traj, wall, args.output, args)
     if error is not None:
         raise error
-    from .._export import scenario_summary
-    from .._main import format_summary
-
     say(args, format_summary(scenario_summary(scenario, traj, wall)))
     say(args, "wrote " + ", ".join(str(p) for p in paths))
     return EXIT_OK

@@ -10,15 +10,16 @@ import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
 from .._body import RigidBody
-from .._forces import ConstantForce, SampledForce
+from .._forces import ConstantForce, PoseTracking, SampledForce
 from .._models import Connection, ImmobileModel, MobileModel
-from .._models.base import _rank
-from .._models.immobile import check_symmetric_psd
+from .._models.immobile import check_stiffness, check_symmetric_psd
+from .._naming import coordinate_names
+from .._options import GIMBAL_TOL
 from .._rotations import get_rotation
-from .._scenario import PoseTracking, PrescribedSpec, Scenario
-from .._simulate import GIMBAL_TOL
-from . import data_files, schema
+from .._scenario import PrescribedSpec, Scenario
+from .data_files import read_matrix, read_series
 from .problems import Problem, Problems, ScenarioError, unknown_key_message
+from .schema import REQUIRED, SECTIONS, TOP_LEVEL_KEYS, Name, ScenarioInfo, SolverTable
 
 # Generalized force components in a forces CSV: world force [N], then the
 # generalized torques conjugate to the three Euler angles [N m].
@@ -26,9 +27,9 @@ FORCE_COMPONENTS = ("fx", "fy", "fz", "q1", "q2", "q3")
 
 _ADAPTERS = {
     name: TypeAdapter(
-        {"table": cls, "array": list[cls], "by_body": dict[schema.Name, cls]}[shape]
+        {"table": cls, "array": list[cls], "by_body": dict[Name, cls]}[shape]
     )
-    for name, (cls, shape) in schema.SECTIONS.items()
+    for name, (cls, shape) in SECTIONS.items()
 }
 
 
@@ -77,20 +78,20 @@ class _Builder:
 
     # -- stage 1: every table on its own ------------------------------------------
     def validate_tables(self):
-        allowed = [*schema.SECTIONS, *schema.TOP_LEVEL_KEYS]
+        allowed = [*SECTIONS, *TOP_LEVEL_KEYS]
         for key in self.raw:
             if key not in allowed:
                 self.add("(top level)", key, unknown_key_message(key, allowed))
-        top = {k: self.raw[k] for k in schema.TOP_LEVEL_KEYS if k in self.raw}
+        top = {k: self.raw[k] for k in TOP_LEVEL_KEYS if k in self.raw}
         try:
-            self.info = schema.ScenarioInfo.model_validate(top)
+            self.info = ScenarioInfo.model_validate(top)
         except ValidationError as err:
             self.info = None
             for e in err.errors():
                 self.add("(top level)", ".".join(map(str, e["loc"])), e["msg"])
-        for name, (_, shape) in schema.SECTIONS.items():
+        for name, (_, shape) in SECTIONS.items():
             if name not in self.raw:
-                if name in schema.REQUIRED:
+                if name in REQUIRED:
                     table = f"[[{name}]]" if shape == "array" else f"[{name}]"
                     self.add(table, "", "missing table")
                 continue
@@ -108,7 +109,7 @@ class _Builder:
                 self.problems.add_validation_error(name, shape, raw, err)
 
     def _validate_entry(self, name, raw, k):
-        cls = schema.SECTIONS[name][0]
+        cls = SECTIONS[name][0]
         try:
             return cls.model_validate(raw[k])
         except ValidationError as err:
@@ -144,6 +145,15 @@ class _Builder:
             seen.setdefault(body.name, k + 1)
         self.names = [b.name for b in bodies]
         self.index = {name: k for k, name in enumerate(self.names)}
+        self.rigid_bodies = []
+        for k, body in enumerate(bodies):
+            try:
+                self.rigid_bodies.append(RigidBody(body.mass, body.inertia))
+            except ValueError as err:
+                key = "inertia" if "inertia" in str(err) else "mass"
+                label = _array_label("bodies", k, self.raw["bodies"][k])
+                self.add(label, key, str(err))
+                self.bodies_valid = False
 
     def body_problem(self, name) -> str:
         return f"no body named '{name}' (bodies: {', '.join(self.names)})"
@@ -164,18 +174,12 @@ class _Builder:
                 ydot[k, :3] = pose.velocity
                 if pose.angle_rates is not None:
                     ydot[k, 3:] = pose.angle_rates.to_radians()
-            reg = abs(float(self.rotation.regularity(jnp.asarray(y[k, 3:]))))
-            if reg < GIMBAL_TOL:
-                other = "rpy" if self.rotation.name == "zxz" else "zxz"
-                self.add(
-                    f"[{section}.{name}]",
-                    "angles",
-                    f"body '{name}' is at gimbal lock of the "
-                    f"{self.rotation.name.upper()} angles "
-                    f"({self.rotation.singularity_name} = {reg:.3g} < {GIMBAL_TOL}),"
-                    f" where the mass matrix is singular; choose other angles or "
-                    f"convention = '{other}' in [model]",
+            try:
+                self.rotation.check_regular(
+                    y[k : k + 1, 3:], GIMBAL_TOL, f"[{section}]", [name]
                 )
+            except ValueError as err:
+                self.add(f"[{section}.{name}]", "angles", str(err))
         missing = [n for n in self.names if n not in tables]
         for name in missing:
             self.add(
@@ -200,7 +204,7 @@ class _Builder:
     def matrix(self, key, value):
         if isinstance(value, str):
             try:
-                return data_files.read_matrix(self.base_dir, value)
+                return read_matrix(self.base_dir, value)
             except ValueError as err:
                 self.add("[immobile]", key, str(err))
                 return None
@@ -230,17 +234,12 @@ class _Builder:
                 )
                 continue
             try:
-                check_symmetric_psd(mat, key)
+                if key == "K":
+                    check_stiffness(mat, n)
+                else:
+                    check_symmetric_psd(mat, key)
             except ValueError as err:
                 self.add("[immobile]", key, str(err))
-                continue
-            if key == "K" and _rank(mat) > 6 * (n - 1):
-                self.add(
-                    "[immobile]",
-                    key,
-                    f"rank K = {_rank(mat)} exceeds 6m = {6 * (n - 1)} (a free "
-                    "system keeps a rigid-motion null space)",
-                )
                 continue
             out[key] = mat
         return out
@@ -293,7 +292,7 @@ class _Builder:
         """Read a CSV; check its '<body>.<column>' names against `allowed(body)`;
         returns `(times, {(body index, column index in columns_of): values})`."""
         try:
-            times, columns = data_files.read_series(self.base_dir, name)
+            times, columns = read_series(self.base_dir, name)
         except ValueError as err:
             self.add(table, key, str(err))
             return None
@@ -374,8 +373,8 @@ class _Builder:
             feedforward=jnp.asarray(feedforward),
             kp=jnp.asarray(pose.kp),
             kd=jnp.asarray(pose.kd),
-            height=pose.lift_height,
-            duration=pose.lift_time,
+            height=jnp.asarray(pose.lift_height, dtype=jnp.float64),
+            duration=jnp.asarray(pose.lift_time, dtype=jnp.float64),
         )
 
     def prescribed(self):
@@ -430,7 +429,7 @@ class _Builder:
         self.model_table = self.s.get("model")
         convention = self.model_table.convention if self.model_table else "zxz"
         self.rotation = get_rotation(convention)
-        self.coordinate_names = ("x", "y", "z", *self.rotation.angle_names)
+        self.coordinate_names = coordinate_names(convention)
         initial = self.poses("initial", rates=True)
         self.y_init, ydot_init = initial if initial is not None else (None, None)
         unloaded = self.poses("unloaded", rates=False)
@@ -465,13 +464,7 @@ class _Builder:
         prescribed = self.prescribed()
         self.problems.raise_if_any()
 
-        bodies = []
-        for k, b in enumerate(self.s["bodies"]):
-            try:
-                bodies.append(RigidBody(b.mass, b.inertia))
-            except ValueError as err:
-                self.add(_array_label("bodies", k, self.raw["bodies"][k]), "", str(err))
-        self.problems.raise_if_any()
+        bodies = self.rigid_bodies
         gravity = self.model_table.gravity
         try:
             if kind == "mobile":
@@ -483,7 +476,7 @@ class _Builder:
         except ValueError as err:
             self.add("[model]", "", str(err))
             self.problems.raise_if_any()
-        solver = self.s.get("solver") or schema.SolverTable()
+        solver = self.s.get("solver") or SolverTable()
         source = pathlib.Path(self.source)
         name = self.info.name or source.stem
         return Scenario(

@@ -3,6 +3,8 @@
 import difflib
 from typing import NamedTuple
 
+from .schema import SECTIONS, TOP_LEVEL_KEYS, Table
+
 
 class Problem(NamedTuple):
     table: str  # e.g. "[[bodies]] #2 (left)", "[initial.beam]"
@@ -33,12 +35,12 @@ def format_problems(source: str, problems: list[Problem]) -> str:
 
 
 def _all_field_names() -> list[str]:
-    from . import schema
-
-    names = set(schema.SECTIONS) | set(schema.TOP_LEVEL_KEYS)
-    for obj in vars(schema).values():
-        if isinstance(obj, type) and issubclass(obj, schema.Table):
-            names |= set(obj.model_fields)
+    names = set(SECTIONS) | set(TOP_LEVEL_KEYS)
+    tables = [Table]
+    while tables:
+        table = tables.pop()
+        names |= set(table.model_fields)
+        tables += table.__subclasses__()
     return sorted(names)
 
 

@@ -14,9 +14,10 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
-    field_validator,
     model_validator,
 )
+
+from .._options import SOLVERS as SOLVER_CLASSES
 
 Number = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -34,7 +35,7 @@ Name = Annotated[
 ]
 AngleUnit = Literal["degrees", "radians"]
 
-SOLVERS = ("tsit5", "dopri5", "dopri8", "bosh3", "heun", "kvaerno3", "kvaerno5")
+SOLVERS = tuple(SOLVER_CLASSES)
 
 
 class Table(BaseModel):
@@ -133,18 +134,6 @@ class BodyTable(Table):
     name: Name
     mass: Positive
     inertia: Annotated[list[Positive], Field(min_length=3, max_length=3)]
-
-    @field_validator("inertia")
-    @classmethod
-    def _triangle(cls, inertia):
-        a, b, c = inertia
-        slack = 1e-12 * (a + b + c)
-        if a + b + slack < c or b + c + slack < a or c + a + slack < b:
-            raise ValueError(
-                f"principal moments {inertia} violate the triangle inequality "
-                "(A + B >= C, B + C >= A, C + A >= B)"
-            )
-        return inertia
 
 
 class PoseTable(Table):

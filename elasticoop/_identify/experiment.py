@@ -5,7 +5,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._forces import AbstractForce, SampledForce, as_force, check_force_shape
+from .._forces import AbstractForce, check_force
+from .._validation import check_times
 
 
 class Experiment(eqx.Module):
@@ -58,20 +59,7 @@ class Experiment(eqx.Module):
         sigma_ydot=None,
         yddot=None,
     ):
-        ts = _array(ts, "Experiment.ts")
-        if ts.ndim != 1 or ts.shape[0] < 2:
-            raise ValueError(
-                f"Experiment.ts must be a 1-D array of at least 2 times, got shape "
-                f"{ts.shape}"
-            )
-        if not np.all(np.isfinite(ts)):
-            raise ValueError("Experiment.ts must be finite")
-        if not np.all(np.diff(ts) > 0):
-            k = int(np.argmin(np.diff(ts)))
-            raise ValueError(
-                f"Experiment.ts must be strictly increasing, but ts[{k}] = {ts[k]} "
-                f">= ts[{k + 1}] = {ts[k + 1]}"
-            )
+        ts = check_times(ts, "Experiment.ts")
         n_times = ts.shape[0]
         y = _series(y, "Experiment.y", n_times)
         n_bodies = y.shape[1]
@@ -91,19 +79,13 @@ class Experiment(eqx.Module):
             raise ValueError(
                 "Experiment.sigma_ydot is required when both sigma and ydot are given"
             )
-        force = as_force(forces)
-        if force is not None:
-            shape = jax.eval_shape(
-                force, jnp.asarray(ts[0]), jnp.asarray(y_init), jnp.asarray(ydot_init)
-            ).shape
-            check_force_shape(shape, n_bodies)
-            if isinstance(force, SampledForce):
-                lo, hi = float(force.ts[0]), float(force.ts[-1])
-                if ts[0] < lo or ts[-1] > hi:
-                    raise ValueError(
-                        f"Experiment.ts spans [{ts[0]}, {ts[-1]}] s but the "
-                        f"SampledForce samples cover only [{lo}, {hi}] s"
-                    )
+        force = check_force(
+            forces,
+            jnp.asarray(y_init),
+            jnp.asarray(ydot_init),
+            jnp.asarray(ts),
+            "Experiment.",
+        )
         self.ts = jnp.asarray(ts)
         self.y = jnp.asarray(y)
         self.y_init = jnp.asarray(y_init)

@@ -10,14 +10,13 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .._simulate import GIMBAL_TOL, LINK_TOL
-from .._trajectory import Status
+from .._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
+from .._status import Status
 from .equation_error import equation_error
 from .experiment import check_experiments
 from .optimisers import levenberg_marquardt, optax_minimise
 from .parameters import free_parameters
 from .residuals import (
-    SimulationOptions,
     make_problem,
     residuals_and_jacobian,
     residuals_by_experiment,
@@ -131,12 +130,13 @@ def identify(
         raise ValueError(f"init must be 'equation_error' or 'model', got {init!r}")
     notes = []
     options = SimulationOptions(
-        solver=solver,
+        solver="tsit5" if solver is None else solver,
         rtol=float(sim_rtol),
         atol=float(sim_atol),
         max_steps=START_MAX_STEPS if max_sim_steps is None else max_sim_steps,
         gimbal_tol=float(gimbal_tol),
         link_tol=float(link_tol),
+        owner="identify",
     )
     problem = make_problem(model, free, experiments, options)
     start = free.current(model)

@@ -14,8 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._models import MobileModel
-
-COORDINATES = ("x", "y", "z", "a1", "a2", "a3")
+from .._naming import coordinate_names
 
 
 class AbstractTransform(eqx.Module):
@@ -270,7 +269,8 @@ def _entry_names(model, path, shape):
     """Readable names of the entries of one leaf, e.g. `stiffness[0-1].x`."""
     if isinstance(model, MobileModel) and path in ("stiffness", "damping"):
         pairs = np.asarray(model.pairs)
-        return [f"{path}[{i}-{j}].{c}" for i, j in pairs.tolist() for c in COORDINATES]
+        coords = coordinate_names(model.convention)
+        return [f"{path}[{i}-{j}].{c}" for i, j in pairs.tolist() for c in coords]
     if not shape:
         return [path]
     return [

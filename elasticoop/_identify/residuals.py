@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._options import SimulationOptions
 from .._simulate import simulate
 from .experiment import Experiment, batch_experiments
 from .parameters import FreeParameters
@@ -47,17 +48,6 @@ def _prepare(stacked: Experiment) -> _Data:
     if stacked.ydot is not None:
         ydot, ydw = clean(stacked.ydot, stacked.sigma_ydot)
     return _Data(stacked, y, yw, ydot, ydw)
-
-
-class SimulationOptions(eqx.Module):
-    """Options handed to `simulate` for every simulation of a fit."""
-
-    solver: diffrax.AbstractSolver | None = None
-    rtol: float = eqx.field(static=True, default=1e-8)
-    atol: float = eqx.field(static=True, default=1e-10)
-    max_steps: int = eqx.field(static=True, default=100_000)
-    gimbal_tol: float = eqx.field(static=True, default=1e-3)
-    link_tol: float = eqx.field(static=True, default=1e-3)
 
 
 class Problem(eqx.Module):
@@ -114,14 +104,9 @@ def _simulate_batch(model, data: _Data, options: SimulationOptions, adjoint):
             e.ydot_init,
             e.ts,
             forces=e.forces,
-            solver=options.solver,
-            rtol=options.rtol,
-            atol=options.atol,
-            max_steps=options.max_steps,
             adjoint=adjoint,
             throw=False,
-            gimbal_tol=options.gimbal_tol,
-            link_tol=options.link_tol,
+            **options.kwargs(),
         )
 
     return jax.vmap(one)(data.experiments)

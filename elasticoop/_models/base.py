@@ -71,13 +71,11 @@ class AbstractElasticModel(eqx.Module):
         weight = -self.gravity * self.bodies.mass
         return jnp.stack([zero, zero, weight, zero, zero, zero], axis=-1)
 
+    @abc.abstractmethod
     def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
         """$(\\partial\\Pi/\\partial Y, \\partial R/\\partial\\dot Y)$, each
-        `(bodies, 6)`, by autodiff of `potential` and `dissipation` (a model may
-        override this with a cheaper route to the same derivatives)."""
-        elastic = jax.grad(self.potential)(y)
-        damping = jax.grad(self.dissipation, argnums=1)(y, ydot)
-        return elastic, damping
+        `(bodies, 6)`: autodiff of `potential` and `dissipation`
+        (`autodiff_restoring_forces`), or a cheaper route to the same derivatives."""
 
     def total_energy(self, y: State, ydot: State) -> Scalar:
         """$E = T + \\Pi + \\sum_i m_i g z_i$ [J]."""
@@ -85,27 +83,36 @@ class AbstractElasticModel(eqx.Module):
             self.kinetic_energy(y, ydot) + self.potential(y) + self.gravity_potential(y)
         )
 
-    def stiffness_matrix(self, y: State) -> jax.Array:
+    @abc.abstractmethod
+    def stiffness_matrix(self, y: State | None = None) -> jax.Array:
         """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))`."""
-        n = 6 * self.n_bodies
-        flat = y.reshape(n)
-        hess = jax.hessian(lambda q: self.potential(q.reshape(y.shape)))(flat)
-        return hess
 
-    def stiffness_rank(self, y: State) -> int:
+    def stiffness_rank(self, y: State | None = None) -> int:
         """rank K of the stiffness at configuration `y` (eigenvalues below
         `RANK_RTOL` times the largest count as zero)."""
-        return _rank(self.stiffness_matrix(jnp.asarray(y, dtype=jnp.float64)))
+        if y is not None:
+            y = jnp.asarray(y, dtype=jnp.float64)
+        return numerical_rank(self.stiffness_matrix(y))
 
-    def n_prescribed(self, y: State) -> int:
+    def n_prescribed(self, y: State | None = None) -> int:
         """$6m + 6 - \\operatorname{rank} K$: coordinates to prescribe to fix the
         system's static position at configuration `y`."""
         return 6 * self.n_bodies - self.stiffness_rank(y)
 
 
-def _rank(k) -> int:
-    eig = np.linalg.eigvalsh(np.asarray(k))
-    top = np.max(np.abs(eig)) if eig.size else 0.0
-    if top == 0.0:
+def autodiff_restoring_forces(model, y: State, ydot: State) -> tuple[State, State]:
+    """$(\\partial\\Pi/\\partial Y, \\partial R/\\partial\\dot Y)$ by autodiff of
+    the model's `potential` and `dissipation`."""
+    elastic = jax.grad(model.potential)(y)
+    damping = jax.grad(model.dissipation, argnums=1)(y, ydot)
+    return elastic, damping
+
+
+def numerical_rank(k) -> int:
+    """Rank of a symmetric matrix: eigenvalues below `RANK_RTOL` times the largest
+    (in magnitude) count as zero."""
+    k = np.asarray(k)
+    if k.size == 0 or not np.any(k):
         return 0
-    return int(np.sum(np.abs(eig) > RANK_RTOL * top))
+    top = np.max(np.abs(np.linalg.eigvalsh(k)))
+    return int(np.linalg.matrix_rank(k, tol=RANK_RTOL * top, hermitian=True))

@@ -1,6 +1,7 @@
 """Appendix A: the immobile unloaded state, a constant stiffness matrix K."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -8,7 +9,7 @@ from .._body import RigidBody, stack_bodies
 from .._custom_types import Scalar, State
 from .._rotations import get_rotation
 from .._validation import as_float_array, is_concrete, require, xp
-from .base import AbstractElasticModel, _rank
+from .base import AbstractElasticModel, autodiff_restoring_forces, numerical_rank
 
 # Relative tolerances for "K is symmetric" and "K is positive semidefinite".
 SYMMETRY_RTOL = 1e-10
@@ -34,6 +35,20 @@ def check_symmetric_psd(matrix, name: str):
         f"{name} must be positive semidefinite; its smallest eigenvalue is",
         low,
     )
+
+
+def check_stiffness(K, n_bodies: int):
+    """K must be symmetric positive semidefinite of rank at most $6m$."""
+    K = check_symmetric_psd(K, "K")
+    if is_concrete(K):
+        rank = numerical_rank(K)
+        if rank > 6 * (n_bodies - 1):
+            raise ValueError(
+                f"rank K must be <= 6m = {6 * (n_bodies - 1)} for m = {n_bodies - 1} "
+                f"manipulators (a free system has a rigid-motion null space), "
+                f"got rank K = {rank}"
+            )
+    return K
 
 
 def check_gravity(gravity) -> Scalar:
@@ -78,16 +93,8 @@ class ImmobileModel(AbstractElasticModel):
         size = 6 * n
         K = as_float_array(K, "ImmobileModel.K", (size, size))
         D = as_float_array(D, "ImmobileModel.D", (size, size))
-        self.K = jnp.asarray(check_symmetric_psd(K, "K"))
+        self.K = jnp.asarray(check_stiffness(K, n))
         self.D = jnp.asarray(check_symmetric_psd(D, "D"))
-        if is_concrete(self.K):
-            rank = _rank(self.K)
-            if rank > 6 * (n - 1):
-                raise ValueError(
-                    f"rank K must be <= 6m = {6 * (n - 1)} for m = {n - 1} "
-                    f"manipulators (a free system has a rigid-motion null space), "
-                    f"got rank K = {rank}"
-                )
         self.y0 = jnp.asarray(as_float_array(y0, "ImmobileModel.y0", (n, 6)))
         self.gravity = check_gravity(gravity)
 
@@ -99,14 +106,9 @@ class ImmobileModel(AbstractElasticModel):
         v = ydot.reshape(-1)
         return 0.5 * v @ (self.D @ v)
 
-    def stiffness_matrix(self, y: State | None = None) -> jnp.ndarray:
-        """K (constant for this model; `y` is ignored)."""
+    def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
+        return autodiff_restoring_forces(self, y, ydot)
+
+    def stiffness_matrix(self, y: State | None = None) -> jax.Array:
+        """K (constant for this model; `y` may be omitted)."""
         return self.K
-
-    def stiffness_rank(self, y: State | None = None) -> int:
-        """rank K."""
-        return _rank(self.K)
-
-    def n_prescribed(self, y: State | None = None) -> int:
-        """$6m + 6 - \\operatorname{rank} K$."""
-        return 6 * self.n_bodies - _rank(self.K)

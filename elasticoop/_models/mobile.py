@@ -287,6 +287,17 @@ class MobileModel(AbstractElasticModel):
             ]
         return jnp.stack(per_body[:6], axis=-1), jnp.stack(per_body[6:], axis=-1)
 
+    def stiffness_matrix(self, y: State | None = None) -> jax.Array:
+        """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))` (it
+        depends on the configuration: `y` is required)."""
+        if y is None:
+            raise ValueError(
+                "MobileModel.stiffness_matrix needs a configuration y: the "
+                "stiffness of Appendix B depends on it"
+            )
+        n = 6 * self.n_bodies
+        return jax.hessian(lambda q: self.potential(q.reshape(y.shape)))(y.reshape(n))
+
     def connection_wrench(self, y: State) -> jnp.ndarray:
         """Generalized elastic force of each connection on its first body $i$,
         $-\\partial \\Pi_{ij}/\\partial Y_i$, shape `(P, 6)`: three world-axis force

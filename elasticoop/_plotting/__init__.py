@@ -1,5 +1,6 @@
 """Plots of a trajectory (matplotlib); every function returns the Figure."""
 
+from .modes import plot_mode_shapes as plot_mode_shapes
 from .time_series import (
     plot_coordinates as plot_coordinates,
     plot_elastic_wrench as plot_elastic_wrench,

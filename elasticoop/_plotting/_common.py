@@ -5,6 +5,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from .._models import MobileModel
+from .._naming import body_names
+
 # One colour per axis/coordinate component, the same in every plot.
 COMPONENT_COLOURS = ("tab:red", "tab:green", "tab:blue")
 
@@ -17,10 +20,7 @@ def new_figure(width: float, height: float) -> Figure:
 
 
 def resolve_body_names(traj, names=None) -> tuple[str, ...]:
-    from .._scenario import default_body_names
-
-    n = traj.model.n_bodies
-    return tuple(names) if names is not None else default_body_names(n)
+    return body_names(names, traj.model.n_bodies)
 
 
 def angle_names(traj) -> tuple[str, str, str]:
@@ -44,8 +44,6 @@ def rotation_matrices(traj) -> np.ndarray:
 def links(traj) -> list[tuple[int, int]]:
     """Pairs of bodies to draw as links: the connections of a `MobileModel`, the
     bodies coupled by a non-zero block of K for an `ImmobileModel`."""
-    from .._models import MobileModel
-
     model = traj.model
     if isinstance(model, MobileModel):
         return [tuple(int(v) for v in p) for p in np.asarray(model.pairs)]

@@ -4,6 +4,7 @@ the energy balance."""
 import numpy as np
 
 from .._models import MobileModel
+from .._naming import connection_names as connection_names_of
 from ._common import (
     COMPONENT_COLOURS,
     angle_names,
@@ -74,14 +75,13 @@ def plot_elastic_wrench(traj, connection_names=None, body_names=None):
     check_single(traj)
     names = resolve_body_names(traj, body_names)
     t = np.asarray(traj.ts)
+    pairs, wrench = traj.grasp_loads()
+    wrench = np.asarray(wrench)
     if isinstance(traj.model, MobileModel):
-        wrench = np.asarray(traj.elastic_wrench())
-        pairs = np.asarray(traj.model.pairs)
-        labels = list(connection_names or [f"{names[i]}-{names[j]}" for i, j in pairs])
+        labels = connection_names_of(connection_names, pairs, names)
         titles = [f"{label}\n(on {names[i]})" for label, (i, j) in zip(labels, pairs)]
         what = "Elastic wrench per connection"
     else:
-        wrench = -np.asarray(traj.elastic_forces())[:, 1:]
         titles = [f"{name}\n(-dPi/dY)" for name in names[1:]]
         what = "Elastic force on each contact body"
     count = wrench.shape[1]

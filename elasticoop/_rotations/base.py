@@ -3,7 +3,9 @@
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._custom_types import Matrix3, Scalar, Vector3
 
@@ -51,6 +53,33 @@ class AbstractRotation(eqx.Module):
         Its sign cannot change without passing through the singularity, which lets
         `simulate` detect a crossing even inside one solver step.
         """
+
+    def gimbal_lock_message(
+        self, what: str, detail: str = "below the threshold"
+    ) -> str:
+        """The one sentence every gimbal-lock error uses: `what` (e.g. "body 1
+        starts at") the singularity, `detail` (the measured value)."""
+        other = "rpy" if self.name == "zxz" else "zxz"
+        return (
+            f"{what} the singularity of the {self.name.upper()} Euler angles "
+            f"({self.singularity_name} {detail}), where the mass matrix is singular; "
+            f"choose other angles or convention={other!r}"
+        )
+
+    def check_regular(self, angles, tol: float, what: str, names=None) -> None:
+        """Raise `ValueError` if a body of the concrete angles `(bodies, 3)` lies
+        within `tol` of the singularity ($|$`regularity`$| <$ `tol`). The message
+        names `what` (e.g. `"y_init"`) and the body (its index, or `names[i]`)."""
+        reg = np.abs(np.asarray(jax.vmap(self.regularity)(jnp.asarray(angles))))
+        if np.any(reg < tol):
+            i = int(np.argmin(reg))
+            body = i if names is None else repr(names[i])
+            raise ValueError(
+                self.gimbal_lock_message(
+                    f"{what}: body {body} starts at gimbal lock,",
+                    f"= {reg[i]:.3g} < {tol}",
+                )
+            )
 
     def angular_velocity(self, angles: Vector3, angle_rates: Vector3) -> Vector3:
         """Body-frame angular velocity

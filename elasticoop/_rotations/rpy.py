@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 
 from .._custom_types import Matrix3, Scalar, Vector3
+from .._naming import ANGLE_NAMES
 from .base import AbstractRotation, rot_x, rot_y, rot_z
 
 
@@ -19,7 +20,7 @@ class RPY(AbstractRotation):
     """
 
     name = "rpy"
-    angle_names = ("roll", "pitch", "yaw")
+    angle_names = ANGLE_NAMES["rpy"]
     regular_angles = (0.0, 0.0, 0.0)
     singularity_name = "|cos(pitch)|"
 

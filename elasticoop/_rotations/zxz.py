@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 
 from .._custom_types import Matrix3, Scalar, Vector3
+from .._naming import ANGLE_NAMES
 from .base import AbstractRotation, rot_x, rot_z
 
 
@@ -19,7 +20,7 @@ class ZXZ(AbstractRotation):
     """
 
     name = "zxz"
-    angle_names = ("psi", "theta", "phi")
+    angle_names = ANGLE_NAMES["zxz"]
     regular_angles = (0.0, jnp.pi / 2, 0.0)
     singularity_name = "|sin(theta)|"
 

@@ -1,12 +1,13 @@
-"""Trajectories as data a researcher can open: an xarray Dataset (netCDF), a wide
-CSV table and a JSON-ready summary."""
-
-import json
-import pathlib
+"""A trajectory as data a researcher can open: an xarray Dataset (netCDF) and a
+wide table (CSV)."""
 
 import numpy as np
 
-from ._models import ImmobileModel, MobileModel
+from .._models import ImmobileModel, MobileModel
+from .._naming import body_names as _body_names, connection_names as _conn_names
+from .._naming import coordinate_names, dof_names
+from .._status import status_message
+from .._version import __version__
 
 # (translation, rotation) units of the per-coordinate variables.
 _UNITS = {
@@ -24,20 +25,6 @@ _ENERGIES = {
     "dissipated": "energy dissipated since t0",
     "energy_residual": "E - E(t0) - work + dissipated (zero up to solver error)",
 }
-
-
-def coordinate_names(model) -> tuple[str, ...]:
-    """`("x", "y", "z")` followed by the convention's angle names."""
-    return ("x", "y", "z", *model.rotation.angle_names)
-
-
-def _names(given, n, default, what):
-    if given is None:
-        return default
-    names = tuple(str(b) for b in given)
-    if len(names) != n or len(set(names)) != n:
-        raise ValueError(f"{what} must be {n} distinct names, got {list(given)}")
-    return names
 
 
 def trajectory_to_xarray(
@@ -68,9 +55,6 @@ def trajectory_to_xarray(
     """
     import xarray as xr
 
-    from ._scenario import default_body_names
-    from ._trajectory import describe
-
     if np.ndim(traj.ts) != 1:
         raise ValueError(
             "to_xarray needs a single trajectory (ts of shape (times,)), got ts of "
@@ -78,8 +62,8 @@ def trajectory_to_xarray(
         )
     model = traj.model
     n = model.n_bodies
-    bodies = _names(body_names, n, default_body_names(n), "body_names")
-    coords = coordinate_names(model)
+    bodies = _body_names(body_names, n)
+    coords = coordinate_names(model.convention)
     coordinate_unit = ["m"] * 3 + ["rad"] * 3
     ds = xr.Dataset(
         coords={
@@ -130,8 +114,7 @@ def trajectory_to_xarray(
     ds = ds.assign_coords(principal_axis=["A", "B", "C"])
     if isinstance(model, MobileModel):
         pairs = np.asarray(model.pairs)
-        default = tuple(f"{bodies[i]}-{bodies[j]}" for i, j in pairs)
-        conns = _names(connection_names, len(pairs), default, "connection_names")
+        conns = _conn_names(connection_names, pairs, bodies)
         ds = ds.assign_coords(
             connection=list(conns),
             body_i=("connection", [bodies[i] for i in pairs[:, 0]]),
@@ -164,7 +147,7 @@ def trajectory_to_xarray(
             {"units": "rad"},
         )
     elif isinstance(model, ImmobileModel):
-        dof = [f"{b}.{c}" for b in bodies for c in coords]
+        dof = dof_names(bodies, model.convention)
         ds = ds.assign_coords(dof=dof, dof_col=dof)
         ds["K"] = (
             ("dof", "dof_col"),
@@ -193,20 +176,14 @@ def trajectory_to_xarray(
             "gravity_units": "m/s^2 along -z",
             "n_bodies": n,
             "status": int(traj.status),
-            "status_message": describe(traj),
+            "status_message": status_message(traj),
             "event_time": float(traj.event_time),
-            "elasticoop_version": _version(),
+            "elasticoop_version": __version__,
         }
     )
     for key, value in (attrs or {}).items():
         ds.attrs[key] = value if not isinstance(value, bool) else int(value)
     return ds
-
-
-def _version() -> str:
-    from . import __version__
-
-    return __version__
 
 
 def dataset_to_frame(ds) -> "pandas.DataFrame":  # noqa: F821
@@ -229,103 +206,3 @@ def dataset_to_frame(ds) -> "pandas.DataFrame":  # noqa: F821
                 unit = t_unit if c < 3 else r_unit
                 columns[f"{name}.{label}.{coord} [{unit}]"] = var.values[:, a, c]
     return pd.DataFrame(columns)
-
-
-def summarize(traj, body_names=None, connection_names=None) -> dict:
-    """A JSON-ready summary of a trajectory: object displacement and rotation, peak
-    elastic force and torque per connection (`MobileModel`) or per contact body
-    (`ImmobileModel`, from $\\partial\\Pi/\\partial Y$), and the energy balance
-    $\\Delta(T + \\Pi + \\sum m g z) = W_F - E_{diss}$ with its residual."""
-    from ._scenario import default_body_names
-    from ._trajectory import describe
-
-    model = traj.model
-    n = model.n_bodies
-    bodies = _names(body_names, n, default_body_names(n), "body_names")
-    y = np.asarray(traj.y)
-    last = int(np.max(np.nonzero(np.all(np.isfinite(y), axis=(1, 2)))[0], initial=0))
-    kinetic = np.asarray(traj.kinetic_energy())
-    elastic = np.asarray(traj.elastic_energy())
-    gravity = np.asarray(traj.gravity_energy())
-    work = float(traj.work[last])
-    dissipated = float(traj.dissipated[last])
-    change = (kinetic[last] + elastic[last] + gravity[last]) - (
-        kinetic[0] + elastic[0] + gravity[0]
-    )
-    residual = change - work + dissipated
-    if isinstance(model, MobileModel):
-        wrench = np.asarray(traj.elastic_wrench())[: last + 1]
-        pairs = np.asarray(model.pairs).tolist()
-        default = [f"{bodies[i]}-{bodies[j]}" for i, j in pairs]
-        labels = list(connection_names or default)
-        peak_of = "connection"
-    else:
-        wrench = np.asarray(traj.elastic_forces())[: last + 1, 1:]
-        pairs = [[0, k] for k in range(1, n)]
-        labels = list(bodies[1:])
-        peak_of = "contact body"
-    return {
-        "status": int(traj.status),
-        "message": describe(traj),
-        "model": type(model).__name__,
-        "convention": model.convention,
-        "bodies": list(bodies),
-        "simulated_time": float(traj.ts[last] - traj.ts[0]),
-        "object_displacement": (y[last, 0, :3] - y[0, 0, :3]).tolist(),
-        "object_rotation": (y[last, 0, 3:] - y[0, 0, 3:]).tolist(),
-        "peak_of": peak_of,
-        "peak_labels": labels,
-        "peak_force": np.max(
-            np.linalg.norm(wrench[:, :, :3], axis=-1), axis=0, initial=0.0
-        ).tolist(),
-        "peak_torque": np.max(
-            np.linalg.norm(wrench[:, :, 3:], axis=-1), axis=0, initial=0.0
-        ).tolist(),
-        "energy": {
-            "kinetic_final": float(kinetic[last]),
-            "elastic_final": float(elastic[last]),
-            "gravity_change": float(gravity[last] - gravity[0]),
-            "total_change": float(change),
-            "work_of_forces": work,
-            "dissipated": dissipated,
-            "residual": float(residual),
-            "relative_residual": float(
-                abs(residual) / max(abs(work), abs(dissipated), abs(change), 1e-300)
-            ),
-        },
-        "pairs": pairs,
-    }
-
-
-def write_outputs(ds, summary: dict, outdir) -> dict[str, pathlib.Path]:
-    """Write `trajectory.nc` (netCDF4 via h5netcdf), `trajectory.csv` and
-    `summary.json` into `outdir` (created if needed); returns the paths."""
-    outdir = pathlib.Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "netcdf": outdir / "trajectory.nc",
-        "csv": outdir / "trajectory.csv",
-        "summary": outdir / "summary.json",
-    }
-    ds.to_netcdf(paths["netcdf"], engine="h5netcdf")
-    dataset_to_frame(ds).to_csv(paths["csv"], index=False)
-    paths["summary"].write_text(json.dumps(summary, indent=2) + "\n")
-    return paths
-
-
-def scenario_summary(scenario, traj, wall_time=None) -> dict:
-    """`summarize` for a run of a `Scenario`, with the scenario's name, file,
-    solver settings and the wall time [s] (compilation included)."""
-    summary = {
-        "scenario": scenario.name,
-        "scenario_file": scenario.source,
-        "solver": {
-            "name": scenario.solver,
-            "rtol": scenario.rtol,
-            "atol": scenario.atol,
-            "max_steps": scenario.max_steps,
-        },
-        "wall_time": wall_time,
-    }
-    summary.update(summarize(traj, scenario.names, scenario.connection_names or None))
-    return summary

@@ -2,25 +2,19 @@
 
 import numpy as np
 
-from .modes import Modes
+from .._analysis.modes import Modes
+from ._common import new_figure
 
 
 def plot_mode_shapes(modes: Modes, count: int = 4):
     """Bar charts of the first `count` mode shapes (mass-normalized, scaled to a
     largest entry of 1), one panel per mode, titled with its frequency and damping
     ratio. Returns the matplotlib `Figure`."""
-    import matplotlib.pyplot as plt
-
     count = min(count, len(modes.frequencies))
     if count < 1:
         raise ValueError(f"count must be at least 1, got {count}")
-    fig, axes = plt.subplots(
-        count,
-        1,
-        figsize=(max(6.0, 0.35 * len(modes.names)), 1.9 * count + 0.6),
-        sharex=True,
-        squeeze=False,
-    )
+    fig = new_figure(max(6.0, 0.35 * len(modes.names)), 1.9 * count + 0.6)
+    axes = fig.subplots(count, 1, sharex=True, squeeze=False)
     x = np.arange(len(modes.names))
     for k, ax in enumerate(axes[:, 0]):
         shape = modes.shapes[:, k]
@@ -36,5 +30,4 @@ def plot_mode_shapes(modes: Modes, count: int = 4):
         ax.set_ylim(-1.15, 1.15)
     axes[-1, 0].set_xticks(x, modes.names, rotation=60, ha="right", fontsize=8)
     axes[-1, 0].set_xlabel("free coordinate")
-    fig.tight_layout()
     return fig

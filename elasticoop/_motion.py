@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 
-from .._custom_types import State
-from .._validation import as_float_array, is_concrete, require
+from ._custom_types import State
+from ._validation import as_float_array, check_times, is_concrete
 
 
 class AbstractMotion(eqx.Module):
@@ -52,14 +52,7 @@ class SplineMotion(AbstractMotion):
     second: jax.Array
 
     def __init__(self, ts, y):
-        ts = as_float_array(ts, "SplineMotion.ts", (None,))
-        if ts.shape[0] < 2:
-            raise ValueError(
-                f"SplineMotion.ts needs at least 2 samples, got {ts.shape[0]}"
-            )
-        ts = require(
-            ts, (ts[1:] > ts[:-1]).all(), "SplineMotion.ts must be increasing", ts
-        )
+        ts = check_times(ts, "SplineMotion.ts")
         y = as_float_array(y, "SplineMotion.y", (ts.shape[0], None, 6))
         self.ts = jnp.asarray(ts)
         self.y = jnp.asarray(y)

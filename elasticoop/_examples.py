@@ -1,0 +1,44 @@
+"""The example scenarios shipped with elasticoop, and the built-in one (the main
+job: `python -m elasticoop`)."""
+
+import importlib.resources
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from ._config import load_scenario
+from ._scenario import Scenario
+
+DEFAULT_EXAMPLE = "beam_lift"
+
+
+def example_files() -> dict[str, object]:
+    """The example scenarios shipped with elasticoop: name -> TOML file (a
+    `importlib.resources` traversable)."""
+    folder = importlib.resources.files("elasticoop") / "scenarios"
+    return {
+        f.name[: -len(".toml")]: f
+        for f in sorted(folder.iterdir(), key=lambda f: f.name)
+        if f.name.endswith(".toml")
+    }
+
+
+def load_example(name: str) -> Scenario:
+    """Load a packaged example scenario by name (see `example_files()`)."""
+    files = example_files()
+    if name not in files:
+        raise ValueError(f"no example scenario {name!r}; examples: {sorted(files)}")
+    with importlib.resources.as_file(files[name]) as path:
+        return load_scenario(path)
+
+
+def default_scenario(n_output: int = 301) -> Scenario:
+    """Two manipulators lift a 1 m, 2 kg beam by 0.2 m in 2 s through elastic grasps
+    at its ends (3 bodies, 2 connections, ZXZ angles at $\\theta = \\pi/2$, so the
+    body x axis is the beam's axis), then hold it for 1 s; read from the packaged
+    `scenarios/beam_lift.toml`. `n_output` evenly spaced output samples."""
+    scenario = load_example(DEFAULT_EXAMPLE)
+    if n_output != scenario.ts.shape[0]:
+        ts = jnp.linspace(scenario.ts[0], scenario.ts[-1], n_output)
+        scenario = eqx.tree_at(lambda s: s.ts, scenario, ts)
+    return scenario

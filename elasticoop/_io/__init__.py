@@ -1,0 +1,1 @@
+"""Results as files and text: xarray/netCDF, CSV, JSON summaries."""

@@ -1,0 +1,107 @@
+"""`SimulationOptions`: how a run is integrated (solver, tolerances, step budget and
+the thresholds of the two singularities), checked once for every caller."""
+
+import math
+import numbers
+
+import diffrax
+import equinox as eqx
+
+# Solver names of scenario files and the command line -> diffrax solvers.
+SOLVERS = {
+    "tsit5": diffrax.Tsit5,
+    "dopri5": diffrax.Dopri5,
+    "dopri8": diffrax.Dopri8,
+    "bosh3": diffrax.Bosh3,
+    "heun": diffrax.Heun,
+    "kvaerno3": diffrax.Kvaerno3,
+    "kvaerno5": diffrax.Kvaerno5,
+}
+
+# Documented thresholds of the two singularities a run stops at.
+GIMBAL_TOL = 1e-3  # |sin theta| (ZXZ) or |cos pitch| (RPY)
+LINK_TOL = 1e-3  # |r_i - r_j| relative to the rest length rho_0
+
+
+def _positive(value, name: str, owner: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not (math.isfinite(number) and number > 0):
+        raise ValueError(f"{owner}.{name} must be a positive number, got {value!r}")
+    return number
+
+
+class SimulationOptions(eqx.Module):
+    """The settings of `simulate` that are not physics, validated in one place and
+    hashable by value (a `jit` key: equal options share compiled code).
+
+    **Fields:**
+
+    - `solver`: a diffrax solver, or its name in `SOLVERS` (`"tsit5"`, the default,
+      `"dopri5"`, `"dopri8"`, `"bosh3"`, `"heun"`, `"kvaerno3"`, `"kvaerno5"`).
+    - `rtol`, `atol`: tolerances of the adaptive step-size controller (> 0).
+    - `max_steps`: the most solver steps a run may take (>= 1).
+    - `gimbal_tol`: a run stops when a body's $|\\sin\\theta|$ (ZXZ) or
+      $|\\cos(\\text{pitch})|$ (RPY) falls below this.
+    - `link_tol`: a run stops when a link of rest length $\\rho_0 > 0$ shrinks to
+      $|r_i - r_j| <$ `link_tol` $\\rho_0$.
+    - `owner`: the name used in error messages (`"simulate"`, `"Study"`, ...).
+    """
+
+    solver: diffrax.AbstractSolver | str = eqx.field(static=True, default="tsit5")
+    rtol: float = eqx.field(static=True, default=1e-8)
+    atol: float = eqx.field(static=True, default=1e-10)
+    max_steps: int = eqx.field(static=True, default=100_000)
+    gimbal_tol: float = eqx.field(static=True, default=GIMBAL_TOL)
+    link_tol: float = eqx.field(static=True, default=LINK_TOL)
+    owner: str = eqx.field(static=True, default="simulate", compare=False)
+
+    def __check_init__(self):
+        if isinstance(self.solver, str):
+            if self.solver not in SOLVERS:
+                raise ValueError(
+                    f"{self.owner}.solver must be one of {sorted(SOLVERS)}, got "
+                    f"{self.solver!r}"
+                )
+        elif not isinstance(self.solver, diffrax.AbstractSolver):
+            raise ValueError(
+                f"{self.owner}.solver must be a diffrax solver or one of "
+                f"{sorted(SOLVERS)}, got {self.solver!r}"
+            )
+        for name in ("rtol", "atol", "gimbal_tol", "link_tol"):
+            _positive(getattr(self, name), name, self.owner)
+        steps = self.max_steps
+        if (
+            isinstance(steps, bool)
+            or not isinstance(steps, numbers.Integral)
+            or steps < 1
+        ):
+            raise ValueError(
+                f"{self.owner}.max_steps must be a positive integer, got {steps!r}"
+            )
+
+    @property
+    def solver_name(self) -> str:
+        """The solver's name (`"tsit5"`, ... or the diffrax class name)."""
+        if isinstance(self.solver, str):
+            return self.solver
+        return type(self.solver).__name__
+
+    def diffrax_solver(self) -> diffrax.AbstractSolver:
+        """The diffrax solver instance."""
+        if isinstance(self.solver, str):
+            return SOLVERS[self.solver]()
+        return self.solver
+
+    def kwargs(self) -> dict:
+        """The keyword arguments of `simulate` these options stand for."""
+        return dict(
+            solver=self.diffrax_solver(),
+            rtol=float(self.rtol),
+            atol=float(self.atol),
+            max_steps=int(self.max_steps),
+            gimbal_tol=float(self.gimbal_tol),
+            link_tol=float(self.link_tol),
+        )

@@ -1,0 +1,98 @@
+"""The package's import structure: layers (the import-linter contract in
+pyproject.toml), no import circles, no submodule importing the package root, and
+every third-party package the code imports declared as a dependency."""
+
+import ast
+import pathlib
+import shutil
+import subprocess
+import sys
+import tomllib
+
+import grimp
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "elasticoop"
+
+
+@pytest.fixture(scope="module")
+def graph():
+    return grimp.build_graph("elasticoop")
+
+
+def _circles(graph) -> list[set[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on_stack, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.find_modules_directly_imported_by(v):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = set()
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.add(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(component)
+
+    for module in sorted(graph.modules):
+        if module not in index:
+            visit(module)
+    return out
+
+
+def test_no_import_circles(graph):
+    # grimp records function-level imports too, and `from . import x` as an
+    # import of the package itself.
+    assert _circles(graph) == []
+
+
+def test_no_submodule_imports_the_package_root(graph):
+    importers = graph.find_modules_that_directly_import("elasticoop")
+    assert not importers, f"modules importing the package root: {sorted(importers)}"
+
+
+@pytest.mark.skipif(shutil.which("lint-imports") is None, reason="needs import-linter")
+def test_layer_contract_holds():
+    out = subprocess.run(
+        ["lint-imports"], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stdout + out.stderr
+
+
+def _imported_top_level_packages() -> set[str]:
+    names = set()
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names.add(node.module.split(".")[0])
+    return names - set(sys.stdlib_module_names) - {"elasticoop"}
+
+
+# Import names that differ from the distribution names in pyproject.toml.
+_DISTRIBUTION = {"yaml": "pyyaml"}
+
+
+def test_every_imported_package_is_declared():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = {
+        dep.split(">")[0].split("=")[0].split("<")[0].split("[")[0].strip().lower()
+        for dep in project["dependencies"]
+    }
+    imported = {_DISTRIBUTION.get(n, n).lower() for n in _imported_top_level_packages()}
+    # mpl_toolkits ships with matplotlib
+    imported.discard("mpl_toolkits")
+    assert imported <= declared, f"imported but not declared: {imported - declared}"
