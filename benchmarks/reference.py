@@ -4,7 +4,8 @@ Two independent hand derivations of $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$, used
 check the library's autodiff right-hand side and to measure how fast it could be:
 
 - `numpy_rhs`: plain NumPy, what a researcher would write from the appendix: per body
-  the printed $W_i$ and angular rows of $w_i$ (ZXZ, with MODEL.md's fixes 2 and 3),
+  the printed $W_i$ and angular rows of $w_i$ (ZXZ, with corrections 2 and 3 of
+  docs/model.md),
   or $W_{rot} = L_\\omega^T I L_\\omega$ and
   $L_\\omega^T (I \\dot L_\\omega \\dot{\\mathcal A} + \\omega \\times I\\omega)$ (RPY),
   a loop over connections, and `np.linalg.solve` per body. `solve_ivp_mobile`

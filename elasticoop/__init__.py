@@ -33,8 +33,8 @@ from ._forces import (  # noqa: E402
     AbstractForce as AbstractForce,
     ConstantForce as ConstantForce,
     FeedbackForce as FeedbackForce,
-    SampledForce as SampledForce,
     PoseTracking as PoseTracking,
+    SampledForce as SampledForce,
     generalized_wrench as generalized_wrench,
 )
 from ._identify import (  # noqa: E402

@@ -3,8 +3,9 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, Float
 
-from ._custom_types import BodyState, Scalar, Vector3
+from ._custom_types import BodyCoordinate, BodyCoordinates, BodyState
 from ._rotations import AbstractRotation
 from ._validation import as_float_array, require
 
@@ -26,8 +27,8 @@ class RigidBody(eqx.Module):
     `(bodies,)` and `model.bodies.inertia` shape `(bodies, 3)`.
     """
 
-    mass: Scalar
-    inertia: Vector3
+    mass: Float[Array, "*bodies"]
+    inertia: Float[Array, "*bodies 3"]
 
     def __init__(self, mass, inertia):
         mass = as_float_array(mass, "RigidBody.mass", ())
@@ -67,8 +68,11 @@ def stack_bodies(bodies) -> RigidBody:
 
 
 def kinetic_energy(
-    body: RigidBody, rotation: AbstractRotation, y: BodyState, ydot: BodyState
-) -> Scalar:
+    body: RigidBody,
+    rotation: AbstractRotation,
+    y: BodyState | BodyCoordinates,
+    ydot: BodyState | BodyCoordinates,
+) -> BodyCoordinate:
     """Kinetic energy of one body,
     $T_i = \\tfrac12 m_i |\\dot r_i|^2 + \\tfrac12 \\omega_i^T I_i \\omega_i$,
     $\\omega_i = L_\\omega(\\mathcal{A}_i)\\dot{\\mathcal{A}}_i$.
@@ -77,7 +81,7 @@ def kinetic_energy(
     $W_i = \\partial^2 T_i/\\partial\\dot y_i^2$ and the velocity terms follow by
     autodiff.
 
-    `y` and `ydot` are arrays `(6,)`, or sequences of six arrays (coordinate by
+    `y` and `ydot` are arrays `(6,)`, or tuples of six arrays (coordinate by
     coordinate) for stacked bodies (`body.mass` `(bodies,)`, `body.inertia`
     `(bodies, 3)`), which gives the `(bodies,)` energies in one elementwise pass.
     """

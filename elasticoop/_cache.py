@@ -4,11 +4,32 @@ import contextlib
 import os
 import pathlib
 
-import equinox._errors
 import jax
+
+from ._compat import check_equinox_version, equinox_error_mode, set_equinox_error_mode
 
 # Where the cache lives unless a path or $ELASTICOOP_CACHE_DIR says otherwise.
 DEFAULT_CACHE_DIR = pathlib.Path("~/.cache/elasticoop/jax").expanduser()
+
+_SETTINGS = (
+    "jax_compilation_cache_dir",
+    "jax_persistent_cache_min_compile_time_secs",
+    "jax_persistent_cache_min_entry_size_bytes",
+)
+
+
+def _use_folder(path) -> pathlib.Path:
+    """Create the cache folder and point JAX's persistent cache at it."""
+    if path is None:
+        path = os.environ.get("ELASTICOOP_CACHE_DIR") or DEFAULT_CACHE_DIR
+    path = pathlib.Path(path).expanduser()
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"path must be a folder, got the file {str(path)!r}")
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    return path
 
 
 def enable_compilation_cache(path=None) -> pathlib.Path:
@@ -25,43 +46,36 @@ def enable_compilation_cache(path=None) -> pathlib.Path:
     Every compiled function is cached, however quick its compilation. JAX refuses
     to store an executable that contains a host callback, and `equinox.error_if`
     (used by diffrax, optimistix and lineax for runtime checks inside compiled
-    code) compiles to one; so for the rest of the process those checks are
-    switched to equinox's `"nan"` mode (a failed check returns NaN instead of
-    raising), as the environment variable `EQX_ON_ERROR=nan` would. `simulate`
-    still reports early stops through `Trajectory.status` and raises
-    `SimulationError` for concrete results; only runtime checks of traced inputs
-    and `throw=True` under `jit` become NaN instead of an error. Call this before
-    the first simulation.
+    code; `simulate` always contains some) compiles to one; so for the rest of the
+    process those checks are switched to equinox's `"nan"` mode (a failed check
+    returns NaN instead of raising), as the environment variable
+    `EQX_ON_ERROR=nan` would. `simulate` still reports early stops through
+    `Trajectory.status` and raises `SimulationError` for concrete results; but
+    runtime checks of traced inputs and `throw=True` under `jit` give NaN instead
+    of an error, and under `vmap` a check that fails for one element of the batch
+    gives NaN for the whole batch. Functions compiled before this call keep
+    raising (and are not stored): call it before the first simulation. For a
+    limited stretch of a program, use `compilation_cache` instead.
     """
-    if path is None:
-        path = os.environ.get("ELASTICOOP_CACHE_DIR") or DEFAULT_CACHE_DIR
-    path = pathlib.Path(path).expanduser()
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"path must be a folder, got the file {str(path)!r}")
-    path.mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", str(path))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    equinox._errors.EQX_ON_ERROR = "nan"
+    check_equinox_version()
+    path = _use_folder(path)
+    set_equinox_error_mode("nan")
     return path
 
 
 @contextlib.contextmanager
 def compilation_cache(path=None):
-    """`enable_compilation_cache` for the duration of a `with` block: the JAX
-    settings and equinox's error mode are restored afterwards (the command line
-    uses this, so that running a command inside a larger program leaves that
+    """`enable_compilation_cache` for the duration of a `with` block: afterwards
+    the JAX settings and equinox's error mode are restored, and no function
+    compiled inside the block is reused in `"nan"` mode outside it (the command
+    line uses this, so that running a command inside a larger program leaves that
     program's settings alone)."""
-    names = (
-        "jax_compilation_cache_dir",
-        "jax_persistent_cache_min_compile_time_secs",
-        "jax_persistent_cache_min_entry_size_bytes",
-    )
-    saved = {name: getattr(jax.config, name) for name in names}
-    saved_mode = equinox._errors.EQX_ON_ERROR
+    check_equinox_version()
+    saved = {name: getattr(jax.config, name) for name in _SETTINGS}
     try:
-        yield enable_compilation_cache(path)
+        folder = _use_folder(path)
+        with equinox_error_mode("nan"):
+            yield folder
     finally:
         for name, value in saved.items():
             jax.config.update(name, value)
-        equinox._errors.EQX_ON_ERROR = saved_mode

@@ -2,6 +2,7 @@
 job: `python -m elasticoop`)."""
 
 import importlib.resources
+from importlib.resources.abc import Traversable
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -12,7 +13,7 @@ from ._scenario import Scenario
 DEFAULT_EXAMPLE = "beam_lift"
 
 
-def example_files() -> dict[str, object]:
+def example_files() -> dict[str, Traversable]:
     """The example scenarios shipped with elasticoop: name -> TOML file (a
     `importlib.resources` traversable)."""
     folder = importlib.resources.files("elasticoop") / "scenarios"

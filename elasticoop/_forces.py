@@ -7,10 +7,18 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-
+import numpy as np
 from jaxtyping import Array, Float
 
-from ._custom_types import Scalar, State, Times, Vector3
+from ._custom_types import (
+    ArrayInput,
+    Forces,
+    Scalar,
+    State,
+    TimeLike,
+    Times,
+    Vector6,
+)
 from ._rotations import get_rotation
 from ._validation import as_float_array, check_times, is_concrete
 
@@ -25,19 +33,19 @@ class AbstractForce(eqx.Module):
     """
 
     @abc.abstractmethod
-    def __call__(self, t: Scalar, y: State, ydot: State) -> Float[Array, "rows 6"]:
+    def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
         pass
 
 
 class ConstantForce(AbstractForce):
     """A constant generalized force `F` of shape `(m, 6)` or `(m + 1, 6)`."""
 
-    F: jnp.ndarray
+    F: Forces
 
-    def __init__(self, F):
+    def __init__(self, F: ArrayInput):
         self.F = jnp.asarray(as_float_array(F, "ConstantForce.F", (None, 6)))
 
-    def __call__(self, t, y, ydot):
+    def __call__(self, t: TimeLike, y: State | None, ydot: State | None) -> Forces:
         return self.F
 
 
@@ -47,17 +55,17 @@ class SampledForce(AbstractForce):
     times are passed to the step-size controller as jump times so that an adaptive
     solver steps onto the kinks. Simulated times must lie within `ts`."""
 
-    ts: jnp.ndarray
-    F: jnp.ndarray
+    ts: Times
+    F: Float[Array, "times rows 6"]
 
-    def __init__(self, ts, F):
+    def __init__(self, ts: ArrayInput, F: ArrayInput):
         ts = check_times(ts, "SampledForce.ts")
         self.ts = jnp.asarray(ts)
         self.F = jnp.asarray(
             as_float_array(F, "SampledForce.F", (ts.shape[0], None, 6))
         )
 
-    def __call__(self, t, y, ydot):
+    def __call__(self, t: TimeLike, y: State | None, ydot: State | None) -> Forces:
         return diffrax.LinearInterpolation(ts=self.ts, ys=self.F).evaluate(t)
 
     @property
@@ -69,9 +77,9 @@ class SampledForce(AbstractForce):
 class FeedbackForce(AbstractForce):
     """A force from a callable `fn(t, y, ydot) -> (m, 6)`, e.g. a feedback law."""
 
-    fn: Callable = eqx.field(static=True)
+    fn: Callable[..., ArrayInput] = eqx.field(static=True)
 
-    def __call__(self, t, y, ydot):
+    def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
         return jnp.asarray(self.fn(t, y, ydot), dtype=jnp.float64)
 
 
@@ -81,7 +89,9 @@ def jump_times(force: AbstractForce | None) -> Times | None:
     return force.jump_ts if isinstance(force, SampledForce) else None
 
 
-def as_force(forces) -> AbstractForce | None:
+def as_force(
+    forces: AbstractForce | Callable[..., ArrayInput] | ArrayInput | None,
+) -> AbstractForce | None:
     """Accept `None`, an `AbstractForce`, a callable or a constant array."""
     if forces is None or isinstance(forces, AbstractForce):
         return forces
@@ -91,12 +101,12 @@ def as_force(forces) -> AbstractForce | None:
 
 
 def generalized_wrench(
-    angles: Vector3,
-    force: Vector3,
-    torque: Vector3,
+    angles: ArrayInput,
+    force: ArrayInput,
+    torque: ArrayInput,
     frame: str = "world",
     convention: str = "zxz",
-) -> jnp.ndarray:
+) -> Vector6:
     """Map a physical wrench at a body's mass centre to its generalized force.
 
     The force enters unchanged (world axes); the torque $\\tau$ maps through the
@@ -131,14 +141,14 @@ def generalized_wrench(
     return jnp.concatenate([force, L.T @ torque])
 
 
-def pad_to_bodies(F: jnp.ndarray, n_bodies: int) -> jnp.ndarray:
+def pad_to_bodies(F: Forces, n_bodies: int) -> State:
     """Return `(bodies, 6)` forces from `(m, 6)` contact forces or `(m + 1, 6)`."""
     if F.shape == (n_bodies - 1, 6):
         return jnp.concatenate([jnp.zeros((1, 6), F.dtype), F])
     return F
 
 
-def check_force_shape(shape, n_bodies: int, owner: str = "") -> None:
+def check_force_shape(shape: tuple[int, ...], n_bodies: int, owner: str = "") -> None:
     """Generalized forces must have shape `(m, 6)` or `(m + 1, 6)`."""
     m = n_bodies - 1
     if tuple(shape) not in ((m, 6), (n_bodies, 6)):
@@ -148,7 +158,13 @@ def check_force_shape(shape, n_bodies: int, owner: str = "") -> None:
         )
 
 
-def check_force(forces, y_init, ydot_init, ts, owner: str = "") -> AbstractForce | None:
+def check_force(
+    forces: AbstractForce | Callable[..., ArrayInput] | ArrayInput | None,
+    y_init: State,
+    ydot_init: State,
+    ts: Float[Array | np.ndarray, " times"],
+    owner: str = "",
+) -> AbstractForce | None:
     """`forces` as an `AbstractForce` (or `None`), checked against the system: its
     value at `ts[0]` must have shape `(m, 6)` or `(m + 1, 6)`, and a
     `SampledForce` must cover the times `ts` (checked where both are concrete).
@@ -170,7 +186,7 @@ def check_force(forces, y_init, ydot_init, ts, owner: str = "") -> AbstractForce
     return force
 
 
-def minimum_jerk(s):
+def minimum_jerk(s: Scalar) -> Scalar:
     """$10s^3 - 15s^4 + 6s^5$ on $[0, 1]$, held at 0 and 1 outside."""
     s = jnp.clip(s, 0.0, 1.0)
     return s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
@@ -192,7 +208,7 @@ class PoseTracking(AbstractForce):
     height: Scalar
     duration: Scalar
 
-    def __call__(self, t, y, ydot):
+    def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
         lift = jnp.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
         s, rate = jax.jvp(
             lambda t: minimum_jerk(t / self.duration), (t,), (jnp.ones_like(t),)

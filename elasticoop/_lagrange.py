@@ -5,8 +5,9 @@ $$w = \\frac{\\partial^2 T}{\\partial \\dot Y\\,\\partial Y}\\dot Y
       - \\frac{\\partial T}{\\partial Y}
       + \\frac{\\partial R}{\\partial \\dot Y} + \\frac{\\partial \\Pi}{\\partial Y}.$$
 
-Nothing here is derived by hand; the structure of the problem is used to keep the
-derivatives cheap:
+The derivation, and the corrections to the printed appendix that the tests rely
+on, are in `docs/model.md` (sections 4 and 6). Nothing here is derived by hand;
+the structure of the problem is used to keep the derivatives cheap:
 
 - $T = \\sum_i T_i(Y_i, \\dot Y_i)$ is evaluated for all bodies at once, coordinate by
   coordinate (six arrays of shape `(bodies,)`), so under `jit`/`vmap` it is one
@@ -24,38 +25,59 @@ derivatives cheap:
   `restoring_forces` (per connection and gathered per body for `MobileModel`).
 """
 
+from collections.abc import Iterable
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._body import kinetic_energy
-from ._custom_types import State
+from ._custom_types import (
+    BodyCoordinate,
+    BodyCoordinates,
+    Mask,
+    MassBlocks,
+    Scalar,
+    State,
+)
 from ._models import AbstractElasticModel
 
 _COORDINATES = range(6)
 _BLOCKS = ((0, 1, 2), (3, 4, 5))  # translations, Euler angles
 
+# The entries `W[i, k]` of all blocks $W_i$, each `(bodies,)`.
+_Blocks = dict[tuple[int, int], BodyCoordinate]
 
-def _coordinates(x: State) -> tuple:
+
+def _coordinates(x: State) -> BodyCoordinates:
     """`(bodies, 6)` -> six arrays `(bodies,)`, coordinate by coordinate."""
     return tuple(x[:, k] for k in _COORDINATES)
 
 
-def _replace(xs: tuple, k: int, value) -> tuple:
+def _replace(xs: BodyCoordinates, k: int, value: BodyCoordinate) -> BodyCoordinates:
     return xs[:k] + (value,) + xs[k + 1 :]
 
 
-def _kinetic_energy(model: AbstractElasticModel, q: tuple, v: tuple):
+def _kinetic_energy(
+    model: AbstractElasticModel, q: BodyCoordinates, v: BodyCoordinates
+) -> Scalar:
     """$T = \\sum_i T_i$ from coordinate tuples."""
     return jnp.sum(kinetic_energy(model.bodies, model.rotation, q, v))
 
 
-def _momentum(model, q: tuple, v: tuple) -> tuple:
+def _momentum(
+    model: AbstractElasticModel, q: BodyCoordinates, v: BodyCoordinates
+) -> BodyCoordinates:
     """$p = \\partial T/\\partial\\dot Y$, six arrays `(bodies,)`."""
     return jax.grad(_kinetic_energy, argnums=2)(model, q, v)
 
 
-def _mass_matrix_columns(model, q: tuple, v: tuple, columns) -> dict:
+def _mass_matrix_columns(
+    model: AbstractElasticModel,
+    q: BodyCoordinates,
+    v: BodyCoordinates,
+    columns: Iterable[int],
+) -> _Blocks:
     """$W_{ik}$ for `k` in `columns`: column $k$ of all blocks $W_i$ at once by one
     forward-mode product of $p$ (linear in $\\dot Y$) along rate $k$ of every
     body. Returns `{(i, k): (bodies,)}` for all rows `i`."""
@@ -70,7 +92,9 @@ def _mass_matrix_columns(model, q: tuple, v: tuple, columns) -> dict:
     return out
 
 
-def _velocity_terms(model, q: tuple, v: tuple) -> tuple:
+def _velocity_terms(
+    model: AbstractElasticModel, q: BodyCoordinates, v: BodyCoordinates
+) -> BodyCoordinates:
     """$(\\partial^2 T/\\partial\\dot Y\\partial Y)\\dot Y - \\partial T/\\partial Y$:
     one Jacobian-vector product of the momentum along $\\dot Y$."""
     _, momentum_rate = jax.jvp(lambda x: _momentum(model, x, v), (q,), (v,))
@@ -78,7 +102,9 @@ def _velocity_terms(model, q: tuple, v: tuple) -> tuple:
     return tuple(a - b for a, b in zip(momentum_rate, dT_dq))
 
 
-def _ldl_solve3(W: dict, rows: tuple, b: tuple) -> tuple:
+def _ldl_solve3(
+    W: _Blocks, rows: tuple[int, int, int], b: BodyCoordinates
+) -> BodyCoordinates:
     """Solve the symmetric positive definite 3x3 system $W x = b$ (entries
     `W[rows[r], rows[c]]`, lower triangle used) by closed-form $LDL^T$."""
     i, j, k = rows
@@ -99,7 +125,7 @@ def _ldl_solve3(W: dict, rows: tuple, b: tuple) -> tuple:
     return x1, x2, x3
 
 
-def mass_matrix(model: AbstractElasticModel, y: State) -> jax.Array:
+def mass_matrix(model: AbstractElasticModel, y: State) -> MassBlocks:
     """The diagonal blocks $W_i(Y_i)$ of the mass matrix, shape `(bodies, 6, 6)`."""
     q = _coordinates(y)
     W = _mass_matrix_columns(model, q, _coordinates(jnp.zeros_like(y)), _COORDINATES)
@@ -126,7 +152,9 @@ def damping_forces(model: AbstractElasticModel, y: State, ydot: State) -> State:
     return jax.grad(model.dissipation, argnums=1)(y, ydot)
 
 
-def _balance(model: AbstractElasticModel, y: State, ydot: State, applied: State):
+def _balance(
+    model: AbstractElasticModel, y: State, ydot: State, applied: State
+) -> tuple[_Blocks, BodyCoordinates, State]:
     """The one assembly of $W\\ddot Y = G + F - w$: every use of the equations of
     motion (free, prescribed and inverse dynamics) starts here.
 
@@ -143,7 +171,9 @@ def _balance(model: AbstractElasticModel, y: State, ydot: State, applied: State)
     return W, b, damping
 
 
-def accelerations(model: AbstractElasticModel, y: State, ydot: State, applied: State):
+def accelerations(
+    model: AbstractElasticModel, y: State, ydot: State, applied: State
+) -> tuple[State, State]:
     """Solve $W\\ddot Y = G + F - w$ per body (3x3 blocks, closed-form $LDL^T$).
 
     **Arguments:** the model, $Y$, $\\dot Y$ and the applied generalized forces $F$
@@ -154,7 +184,7 @@ def accelerations(model: AbstractElasticModel, y: State, ydot: State, applied: S
     (whose product with $\\dot Y$ is the dissipated power $2R$).
     """
     W, b, damping = _balance(model, y, ydot, applied)
-    yddot = []
+    yddot: list[BodyCoordinate] = []
     for block in _BLOCKS:
         yddot += _ldl_solve3(W, block, tuple(b[k] for k in block))
     return jnp.stack(yddot, -1), damping
@@ -165,9 +195,9 @@ def constrained_accelerations(
     y: State,
     ydot: State,
     applied: State,
-    mask: np.ndarray,
+    mask: Mask,
     yddot_prescribed: State,
-):
+) -> tuple[State, State, State]:
     """Accelerations and reactions with the coordinates in `mask` prescribed.
 
     With $f$ the free and $p$ the prescribed coordinates of each body, the free rows
@@ -194,7 +224,8 @@ def constrained_accelerations(
     # Only coordinates prescribed for some body enter the elimination (a Python-level
     # choice on the concrete mask: nothing prescribed costs nothing).
     driven = {k: mask[:, k] for k in _COORDINATES if mask[:, k].any()}
-    yddot = []
+    yddot: list[BodyCoordinate] = []
+    p: np.ndarray | bool
     for block in _BLOCKS:
         S = dict(W)
         r = []

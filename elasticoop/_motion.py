@@ -1,14 +1,23 @@
 """Motions of prescribed coordinates: any callable $t \\mapsto Y(t)$, or samples."""
 
 import abc
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
 import numpy as np
+from jaxtyping import Bool
 
-from ._custom_types import State
+from ._custom_types import (
+    ArrayInput,
+    State,
+    StateSeries,
+    TimeLike,
+    Times,
+    Validated,
+)
 from ._validation import as_float_array, check_times, is_concrete
 
 
@@ -18,7 +27,7 @@ class AbstractMotion(eqx.Module):
     differentiable (at least piecewise)."""
 
     @abc.abstractmethod
-    def __call__(self, t) -> State:
+    def __call__(self, t: TimeLike) -> State:
         raise NotImplementedError
 
 
@@ -47,18 +56,18 @@ class SplineMotion(AbstractMotion):
     Differentiable with respect to `y` (and `ts`).
     """
 
-    ts: jax.Array
-    y: jax.Array
-    second: jax.Array
+    ts: Times
+    y: StateSeries
+    second: StateSeries
 
-    def __init__(self, ts, y):
+    def __init__(self, ts: ArrayInput, y: ArrayInput):
         ts = check_times(ts, "SplineMotion.ts")
         y = as_float_array(y, "SplineMotion.y", (ts.shape[0], None, 6))
         self.ts = jnp.asarray(ts)
         self.y = jnp.asarray(y)
         self.second = _natural_second_derivatives(self.ts, self.y)
 
-    def __call__(self, t) -> State:
+    def __call__(self, t: TimeLike) -> State:
         k = jnp.clip(
             jnp.searchsorted(self.ts, t, side="right") - 1, 0, len(self.ts) - 2
         )
@@ -74,7 +83,7 @@ class SplineMotion(AbstractMotion):
         )
 
 
-def _natural_second_derivatives(ts, y):
+def _natural_second_derivatives(ts: Times, y: StateSeries) -> StateSeries:
     n = ts.shape[0]
     if n < 3:
         return jnp.zeros_like(y)
@@ -94,9 +103,9 @@ def _natural_second_derivatives(ts, y):
 
 
 class _Callable(AbstractMotion):
-    fn: object
+    fn: Callable[[TimeLike], State]
 
-    def __call__(self, t) -> State:
+    def __call__(self, t: TimeLike) -> State:
         return self.fn(t)
 
 
@@ -119,9 +128,11 @@ class PrescribedMotion(eqx.Module):
     """
 
     motion: AbstractMotion
-    mask_tuple: tuple = eqx.field(static=True)
+    mask_tuple: tuple[tuple[bool, ...], ...] = eqx.field(static=True)
 
-    def __init__(self, mask, motion):
+    def __init__(
+        self, mask: ArrayInput, motion: Validated[Callable[[TimeLike], State]]
+    ):
         arr = np.asarray(mask)
         if arr.ndim != 2 or arr.shape[1] != 6 or arr.dtype != np.bool_:
             raise ValueError(
@@ -139,14 +150,14 @@ class PrescribedMotion(eqx.Module):
         )
 
     @property
-    def mask(self) -> np.ndarray:
+    def mask(self) -> Bool[np.ndarray, "bodies 6"]:
         return np.array(self.mask_tuple, dtype=bool)
 
     @property
     def n_prescribed(self) -> int:
         return int(self.mask.sum())
 
-    def state(self, t):
+    def state(self, t: TimeLike) -> tuple[State, State, State]:
         """$(Y(t), \\dot Y(t), \\ddot Y(t))$ of the motion, each `(bodies, 6)`."""
         t = jnp.asarray(t, dtype=jnp.float64)
 
@@ -156,7 +167,7 @@ class PrescribedMotion(eqx.Module):
         (y, v), (_, a) = jax.jvp(position_velocity, (t,), (jnp.ones_like(t),))
         return y, v, a
 
-    def check(self, n_bodies: int, t0, t1) -> None:
+    def check(self, n_bodies: int, t0: TimeLike, t1: TimeLike) -> None:
         """Validate against a model of `n_bodies` on the span `[t0, t1]`."""
         if self.mask.shape != (n_bodies, 6):
             raise ValueError(

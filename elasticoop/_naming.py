@@ -9,6 +9,8 @@ RPY), and a degree of freedom of the stacked $Y$ is named `<body>.<coordinate>`.
 
 from collections.abc import Iterable, Sequence
 
+import numpy as np
+
 TRANSLATION_NAMES = ("x", "y", "z")
 ANGLE_NAMES = {"zxz": ("psi", "theta", "phi"), "rpy": ("roll", "pitch", "yaw")}
 
@@ -50,7 +52,9 @@ def dof_names(bodies: Sequence[str], convention: str) -> list[str]:
 
 
 def connection_names(
-    given: Iterable | None, pairs: Sequence, bodies: Sequence[str]
+    given: Iterable | None,
+    pairs: Sequence[tuple[int, int]] | np.ndarray,
+    bodies: Sequence[str],
 ) -> tuple[str, ...]:
     """Validated connection names, or `<body_i>-<body_j>` per pair `(i, j)`."""
     pairs = [(int(i), int(j)) for i, j in pairs]

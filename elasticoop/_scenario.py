@@ -2,11 +2,13 @@
 into one by `elasticoop.load_scenario`)."""
 
 import dataclasses
+from typing import Any
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Bool, Float
 
+from ._custom_types import State, Times
 from ._forces import AbstractForce
 from ._models import AbstractElasticModel
 from ._motion import PrescribedMotion, SplineMotion
@@ -28,18 +30,18 @@ class PrescribedSpec:
       their initial value, and entries outside `mask` carry the initial state.
     """
 
-    mask: np.ndarray
-    ts: np.ndarray | None
-    values: np.ndarray
+    mask: Bool[np.ndarray, "bodies 6"]
+    ts: Float[np.ndarray, " times"] | None
+    values: Float[np.ndarray, "bodies 6"] | Float[np.ndarray, "times bodies 6"]
 
     @property
     def hold(self) -> bool:
         return self.ts is None
 
-    def motion(self, ts) -> PrescribedMotion:
+    def motion(self, ts: Float[Array | np.ndarray, " times"]) -> PrescribedMotion:
         """The `PrescribedMotion` for a run over `ts`: a natural cubic spline
         through the samples, or the held values (a constant spline over `ts`)."""
-        if self.hold:
+        if self.ts is None:  # hold
             span = np.array([float(ts[0]), float(ts[-1])])
             held = np.asarray(self.values, dtype=float)
             return PrescribedMotion(
@@ -58,9 +60,9 @@ class Scenario(eqx.Module):
 
     name: str = eqx.field(static=True)
     model: AbstractElasticModel
-    y_init: jnp.ndarray
-    ydot_init: jnp.ndarray
-    ts: jnp.ndarray
+    y_init: State
+    ydot_init: State
+    ts: Times
     forces: AbstractForce | None
     body_names: tuple[str, ...] = eqx.field(static=True, default=())
     connection_names: tuple[str, ...] = eqx.field(static=True, default=())
@@ -87,7 +89,7 @@ class Scenario(eqx.Module):
         """Body names (`body_names`, or object, contact1, ... when not given)."""
         return self.body_names or default_body_names(self.model.n_bodies)
 
-    def simulate(self, **overrides) -> Trajectory:
+    def simulate(self, **overrides: Any) -> Trajectory:
         """Run `elasticoop.simulate` with this scenario's model, initial state,
         times, forces, solver and tolerances; keyword arguments override them
         (e.g. `progress_meter=diffrax.TqdmProgressMeter()` where supported)."""

@@ -1,11 +1,23 @@
 """`simulate`: a thin layer over `diffrax.diffeqsolve`."""
 
+from collections.abc import Callable
+
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
+from jaxtyping import Array, Float
 
+from ._custom_types import (
+    ArrayInput,
+    BodyScalars,
+    Scalar,
+    State,
+    TimeLike,
+    Times,
+    Validated,
+)
 from ._forces import AbstractForce, check_force, jump_times, pad_to_bodies
 from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
@@ -14,6 +26,15 @@ from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
 from ._status import Status, status_message
 from ._trajectory import Trajectory
 from ._validation import as_float_array, check_times, is_concrete
+
+# The state diffrax integrates: Y, its rate, the work done by the applied forces and
+# the energy dissipated.
+_ODEState = tuple[State, State, Scalar, Scalar]
+# `args` of the vector field: model, force, the sign of each body's regularity at the
+# start, and the prescribed motion.
+_Args = tuple[
+    AbstractElasticModel, AbstractForce | None, BodyScalars, PrescribedMotion | None
+]
 
 
 class SimulationError(RuntimeError):
@@ -28,11 +49,11 @@ class SimulationError(RuntimeError):
 
 
 def simulate(
-    model: AbstractElasticModel,
-    y_init,
-    ydot_init,
-    ts,
-    forces=None,
+    model: Validated[AbstractElasticModel],
+    y_init: ArrayInput,
+    ydot_init: ArrayInput,
+    ts: ArrayInput,
+    forces: AbstractForce | Callable[..., ArrayInput] | ArrayInput | None = None,
     solver: diffrax.AbstractSolver | None = None,
     rtol: float = 1e-8,
     atol: float = 1e-10,
@@ -43,7 +64,7 @@ def simulate(
     throw: bool | None = None,
     gimbal_tol: float = GIMBAL_TOL,
     link_tol: float = LINK_TOL,
-    prescribed: PrescribedMotion | None = None,
+    prescribed: Validated[PrescribedMotion | None] = None,
     progress_meter: diffrax.AbstractProgressMeter | None = None,
 ) -> Trajectory:
     """Integrate $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$ from `ts[0]` to `ts[-1]`.
@@ -145,13 +166,21 @@ def simulate(
     return traj
 
 
-def _applied(model, force, t, y, ydot):
+def _applied(
+    model: AbstractElasticModel,
+    force: AbstractForce | None,
+    t: TimeLike,
+    y: State,
+    ydot: State,
+) -> State:
     if force is None:
         return jnp.zeros_like(y)
     return pad_to_bodies(force(t, y, ydot), model.n_bodies)
 
 
-def _vector_field(t, state, args):
+def _vector_field(
+    t: TimeLike, state: _ODEState, args: _Args
+) -> tuple[State, State, Scalar, Scalar]:
     model, force, _, prescribed = args
     y, ydot, _, _ = state
     if prescribed is None:
@@ -165,7 +194,14 @@ def _vector_field(t, state, args):
     return ydot, yddot, power, jnp.sum(damping * ydot)
 
 
-def _driven(model, force, prescribed, t, y, ydot):
+def _driven(
+    model: AbstractElasticModel,
+    force: AbstractForce | None,
+    prescribed: PrescribedMotion,
+    t: TimeLike,
+    y: State,
+    ydot: State,
+) -> tuple[State, State, State, State, State, State]:
     """The state with the prescribed entries substituted, and its dynamics."""
     mask = prescribed.mask
     y_p, ydot_p, yddot_p = prescribed.state(t)
@@ -178,11 +214,13 @@ def _driven(model, force, prescribed, t, y, ydot):
     return y, ydot, yddot, damping, reaction, applied
 
 
-def _regularity(model, y):
+def _regularity(model: AbstractElasticModel, y: State) -> BodyScalars:
     return jax.vmap(model.rotation.regularity)(y[:, 3:])
 
 
-def _link_margin(model, y, link_tol):
+def _link_margin(
+    model: MobileModel, y: State, link_tol: float
+) -> Float[Array, " connections"]:
     """$|r_i - r_j| - tol\\,\\rho_0$ per link; links with $\\rho_0 = 0$ never stop."""
     margin = model.link_lengths(y) - link_tol * model.rest_length
     return jnp.where(model.rest_length > 0, margin, jnp.inf)
@@ -191,20 +229,20 @@ def _link_margin(model, y, link_tol):
 @eqx.filter_jit
 def _solve(
     model: AbstractElasticModel,
-    y_init,
-    ydot_init,
-    ts,
+    y_init: State,
+    ydot_init: State,
+    ts: Times,
     force: AbstractForce | None,
-    solver,
-    rtol,
-    atol,
-    max_steps,
-    dt0,
-    adjoint,
-    gimbal_tol,
-    link_tol,
-    prescribed,
-    progress_meter,
+    solver: diffrax.AbstractSolver,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+    dt0: float | None,
+    adjoint: diffrax.AbstractAdjoint,
+    gimbal_tol: float,
+    link_tol: float,
+    prescribed: PrescribedMotion | None,
+    progress_meter: diffrax.AbstractProgressMeter,
 ) -> Trajectory:
     # A start at the singularity (only possible when traced) is flagged, and a
     # regular orientation is integrated instead so the batch stays finite.
@@ -287,7 +325,7 @@ def _solve(
         ],
         Status.SUCCESS,
     )
-    if len(cond_fns) > 1:
+    if isinstance(model, MobileModel) and len(cond_fns) > 1:
         worst_link = jnp.argmin(_link_margin(model, y_end, link_tol))
     else:
         worst_link = jnp.asarray(-1)

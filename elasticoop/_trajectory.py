@@ -1,13 +1,20 @@
 """The result of `simulate` and the quantities derived from it."""
 
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
 
-from ._custom_types import StateSeries, Times
+from ._custom_types import Scalar, StateSeries, Times
 from ._lagrange import elastic_forces
 from ._models import AbstractElasticModel, MobileModel
 from ._status import Status, status_message
+
+if TYPE_CHECKING:
+    import xarray
 
 
 class Trajectory(eqx.Module):
@@ -42,13 +49,13 @@ class Trajectory(eqx.Module):
     work: Times
     dissipated: Times
     model: AbstractElasticModel
-    status: jax.Array
-    event_time: jax.Array
-    event_index: jax.Array
+    status: Int[Array, ""]
+    event_time: Scalar
+    event_index: Int[Array, ""]
     reaction: StateSeries | None = None
-    n_steps: jax.Array | None = None
+    n_steps: Int[Array, ""] | None = None
 
-    def to_xarray(self, body_names=None):
+    def to_xarray(self, body_names: Iterable[str] | None = None) -> "xarray.Dataset":
         """The trajectory as an `xarray.Dataset` (dims `time`, `body`, `coordinate`),
         with units and the model parameters as attributes."""
         # The one import against the layers (results -> files): a convenience
@@ -58,7 +65,7 @@ class Trajectory(eqx.Module):
         return trajectory_to_xarray(self, body_names=body_names)
 
     @property
-    def succeeded(self) -> jax.Array:
+    def succeeded(self) -> Bool[Array, "*batch"]:
         return self.status == Status.SUCCESS
 
     def _over_time(self, fn, *fields):
@@ -94,7 +101,7 @@ class Trajectory(eqx.Module):
         """$\\partial\\Pi/\\partial Y$ per body [N, N m], shape `(times, bodies, 6)`."""
         return self._over_time(lambda y: elastic_forces(self.model, y), self.y)
 
-    def elastic_wrench(self) -> jax.Array:
+    def elastic_wrench(self) -> Float[Array, "times connections 6"]:
         """Generalized elastic force of each connection on its first body,
         $-\\partial\\Pi_{ij}/\\partial Y_i$, shape `(times, connections, 6)`
         (`MobileModel` only; for an `ImmobileModel` see `elastic_forces`)."""
@@ -105,7 +112,9 @@ class Trajectory(eqx.Module):
             )
         return self._over_time(self.model.connection_wrench, self.y)
 
-    def grasp_loads(self) -> tuple[list[tuple[int, int]], jax.Array]:
+    def grasp_loads(
+        self,
+    ) -> tuple[list[tuple[int, int]], Float[Array, "times grasps 6"]]:
         """The elastic load at each grasp: `(pairs, wrench)` with `wrench` of shape
         `(times, grasps, 6)`. Per connection $(i, j)$ for a `MobileModel`
         (`elastic_wrench`, on body $i$), per contact body $k$ for an

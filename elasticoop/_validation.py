@@ -5,32 +5,44 @@ user's `jit`/`vmap`/`grad`) are checked with `eqx.error_if`, which raises at run
 """
 
 from collections.abc import Sequence
+from types import ModuleType
+from typing import Any, TypeVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._custom_types import ArrayInput, Validated
+
+_T = TypeVar("_T")
 
 
-def is_concrete(*xs) -> bool:
+def is_concrete(*xs: Any) -> bool:
     """True when no leaf of `xs` is a tracer, so values can be inspected in Python."""
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(xs))
 
 
-def _show(value) -> str:
+def _show(value: ArrayLike) -> str:
     arr = np.asarray(value)
     if arr.size > 12:
         return f"array of shape {arr.shape}"
     return np.array2string(arr, precision=6, separator=", ")
 
 
-def as_float_array(value, name: str, shape: Sequence[int | None] | None = None):
+def as_float_array(
+    value: Validated[ArrayInput],
+    name: str,
+    shape: Sequence[int | None] | None = None,
+) -> Float[np.ndarray, "..."] | Float[Array, "..."]:
     """Convert to a float64 array, checking shape and finiteness.
 
     `shape` entries of `None` accept any length along that axis. Concrete input
     comes back as a NumPy array (convert with `jnp.asarray` when storing it), traced
     input as a JAX array.
     """
+    arr: np.ndarray | Array
     if isinstance(value, jax.core.Tracer):
         arr = value.astype(jnp.float64) if value.dtype != jnp.float64 else value
     else:
@@ -54,12 +66,12 @@ def as_float_array(value, name: str, shape: Sequence[int | None] | None = None):
     return require(arr, jnp.all(jnp.isfinite(arr)), f"{name} must be finite", arr)
 
 
-def xp(*arrays):
+def xp(*arrays: Any) -> ModuleType:
     """NumPy for concrete arrays, jax.numpy for traced ones."""
     return np if is_concrete(*arrays) else jnp
 
 
-def require(x, ok, message: str, shown=None):
+def require(x: _T, ok: ArrayLike, message: str, shown: Any = None) -> _T:
     """Return `x`, raising `ValueError(message + value)` where `ok` is false.
 
     With concrete inputs the check happens now; with traced ones through
@@ -73,7 +85,9 @@ def require(x, ok, message: str, shown=None):
     return eqx.error_if(x, jnp.logical_not(jnp.all(ok)), message)
 
 
-def check_times(ts, name: str):
+def check_times(
+    ts: Validated[ArrayInput], name: str
+) -> Float[np.ndarray, " times"] | Float[Array, " times"]:
     """A time grid: a float64 array `(times,)` of at least 2 finite, strictly
     increasing times (NumPy when concrete, JAX when traced; a traced grid is checked
     at run time). Errors name `name` and, when concrete, the first bad sample."""

@@ -13,7 +13,7 @@ import xarray as xr
 
 from elasticoop import GIMBAL_TOL
 from elasticoop._cli import _common, main
-from elasticoop._scenario import example_files
+from elasticoop._examples import example_files
 
 EXAMPLES = sorted(example_files())
 EXPECTED_BODIES = {"beam_lift": 3, "hanging_object": 2, "plate_lift": 4}
@@ -214,3 +214,92 @@ def test_modes_of_the_held_beam(examples_dir, tmp_path, capsys):
     freqs = np.array(summary["frequencies_hz"])
     assert freqs.shape == (6,) and np.all(np.diff(freqs) >= 0) and freqs[0] > 0
     assert (outdir / "modes.png").stat().st_size > 0
+
+
+BAD_MASS = GIMBAL.replace("mass = 1.0", "mass = -1.0")
+
+
+def test_internal_bug_shows_a_traceback_and_exits_1(examples_dir, monkeypatch, capsys):
+    def broken(path):
+        raise ValueError("internal")
+
+    monkeypatch.setattr(_common, "load_scenario", broken)
+    assert main(["check", str(examples_dir / "beam_lift.toml")]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "ValueError: internal" in err
+    assert "internal error" in err and "bug in elasticoop" in err
+
+    def io_bug(path):
+        raise FileNotFoundError(2, "No such file or directory", "/no/such/table.dat")
+
+    monkeypatch.setattr(_common, "load_scenario", io_bug)
+    assert main(["check", str(examples_dir / "beam_lift.toml")]) == 1
+    assert "Traceback" in capsys.readouterr().err
+
+
+def test_bad_scenario_file_exits_2_without_traceback(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text(BAD_MASS)
+    assert main(["run", str(path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "key 'mass'" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_debug_shows_the_traceback_of_every_error(tmp_path, monkeypatch, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text(BAD_MASS)
+    assert main(["--debug", "run", str(path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "ScenarioError" in err and "key 'mass'" in err
+    assert err.rstrip().splitlines()[-1].startswith("  - table")  # message last
+    assert main(["--debug", "check", str(tmp_path / "none.toml")]) == 2
+    assert "Traceback" in capsys.readouterr().err
+    # --debug alone runs the demo, as no arguments do
+    from elasticoop._cli import demo
+
+    seen = []
+    monkeypatch.setattr(demo, "execute", lambda args: seen.append(args) or 0)
+    assert main(["--debug"]) == 0
+    assert seen[0].command == "demo" and seen[0].debug
+
+
+def test_unusable_files_and_folders_named_by_the_user_exit_2(tmp_path, capsys):
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("")
+    for target in (a_file, a_file / "sub"):  # the folder itself, or one above it
+        assert main(["examples", "--copy", str(target)]) == 2
+        err = capsys.readouterr().err
+        assert "elasticoop examples: error:" in err and "Traceback" not in err
+
+
+def test_snapshots_outside_the_time_span_exit_2_before_simulating(tmp_path, capsys):
+    path = tmp_path / "gimbal.toml"
+    path.write_text(GIMBAL)
+    code = main(["run", str(path), "-o", str(tmp_path / "out"), "--snapshots", "9"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--snapshots: 9 s lie outside" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_unusable_cache_folder_exits_2(tmp_path, monkeypatch, capsys):
+    not_a_folder = tmp_path / "cache"
+    not_a_folder.write_text("")
+    monkeypatch.setenv("ELASTICOOP_CACHE_DIR", str(not_a_folder))
+    assert main(["run", str(tmp_path / "none.toml"), "-o", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "compilation cache folder" in err and "ELASTICOOP_CACHE_DIR" in err
+    assert "Traceback" not in err
+
+
+def test_option_types_for_positive_values():
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--tol", type=_common.positive_float)
+    parser.add_argument("--count", type=_common.positive_int)
+    assert parser.parse_args(["--tol", "1e-6", "--count", "2"]).tol == 1e-6
+    for bad in (["--tol", "0"], ["--tol", "nan"], ["--tol", "x"], ["--count", "0"]):
+        with pytest.raises(SystemExit):
+            parser.parse_args(bad)

@@ -287,7 +287,8 @@ def test_all_nan_channel_and_wrong_bodies():
 def test_bad_identify_arguments():
     model, y0, ts, y = _data()
     e = Experiment(ts, y, y0, np.zeros((2, 6)))
-    with pytest.raises(ValueError, match="not a floating-point array"):
+    # the connected pairs are structure (a property), not a model leaf
+    with pytest.raises(ValueError, match="where must return model leaves"):
         identify(model, e, lambda m: m.pairs, progress=False)
     with pytest.raises(ValueError, match="where must"):
         identify(model, e, lambda m: m.stiffness[0], progress=False)

@@ -251,7 +251,9 @@ def test_constrained_solve_matches_a_dense_solve(seed):
     y, ydot, applied = _random_state(seed)
     mask = np.random.default_rng(seed).random((3, 6)) < 0.4
     a_p = jnp.asarray(np.random.default_rng(seed + 10).standard_normal((3, 6)))
-    yddot, _, reaction = eo.constrained_accelerations(model, y, ydot, applied, mask, a_p)
+    yddot, _, reaction = eo.constrained_accelerations(
+        model, y, ydot, applied, mask, a_p
+    )
 
     W = eo.mass_matrix(model, y)
     rhs = (

@@ -2,12 +2,16 @@
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Bool
 
+from .._custom_types import ArrayInput, State
 from .._forces import check_force_shape, pad_to_bodies
 from .._validation import as_float_array
 
 
-def as_mask(mask, n_bodies: int, name: str = "prescribed") -> np.ndarray:
+def as_mask(
+    mask: ArrayInput | None, n_bodies: int, name: str = "prescribed"
+) -> Bool[np.ndarray, "bodies 6"]:
     """A bool `(bodies, 6)` array of prescribed coordinates (`None`: none)."""
     if mask is None:
         return np.zeros((n_bodies, 6), dtype=bool)
@@ -20,7 +24,7 @@ def as_mask(mask, n_bodies: int, name: str = "prescribed") -> np.ndarray:
     return arr
 
 
-def constant_forces(forces, n_bodies: int):
+def constant_forces(forces: ArrayInput | None, n_bodies: int) -> State:
     """Constant generalized forces as `(bodies, 6)` (`None`: zero)."""
     if forces is None:
         return jnp.zeros((n_bodies, 6))

@@ -1,17 +1,21 @@
 """Static equilibrium with some coordinates prescribed."""
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jaxtyping import Array, Bool, Float, Int
 
-from .._custom_types import State
+from .._custom_types import ArrayInput, DofMatrix, Scalar, State
 from .._lagrange import elastic_forces
 from .._models import AbstractElasticModel
 from .._models.base import numerical_rank
 from .._validation import as_float_array
 from ._common import as_mask, constant_forces
+
+# `args` of the solvers: the model, the guess (holding the prescribed values), the
+# indices of the free coordinates in the stacked $Y$, and the applied forces.
+_Args = tuple[AbstractElasticModel, State, Int[Array, " free"], State]
 
 
 class Equilibrium(eqx.Module):
@@ -32,10 +36,15 @@ class Equilibrium(eqx.Module):
 
     y: State
     reaction: State
-    residual: jax.Array
-    stiffness: jax.Array
-    mask: np.ndarray
-    steps: int
+    residual: Scalar
+    stiffness: Float[Array, "free free"]
+    mask_tuple: tuple[tuple[bool, ...], ...] = eqx.field(static=True)
+    steps: int = eqx.field(static=True)
+
+    @property
+    def mask(self) -> Bool[np.ndarray, "bodies 6"]:
+        """The prescribed coordinates, bool `(bodies, 6)`."""
+        return np.array(self.mask_tuple, dtype=bool)
 
     @property
     def stable(self) -> bool:
@@ -44,25 +53,27 @@ class Equilibrium(eqx.Module):
         return bool(np.linalg.eigvalsh(np.asarray(self.stiffness)).min() > 0)
 
 
-def _restricted_stiffness(model, y, free):
+def _restricted_stiffness(
+    model: AbstractElasticModel, y: State, free: Int[np.ndarray, " free"]
+) -> Float[np.ndarray, "free free"]:
     K = _stiffness(model, y)
     return np.asarray(K)[np.ix_(free, free)]
 
 
 @eqx.filter_jit
-def _stiffness(model, y):
+def _stiffness(model: AbstractElasticModel, y: State) -> DofMatrix:
     return model.stiffness_matrix(y)
 
 
-def _missing_constraints(k_ff) -> int:
+def _missing_constraints(k_ff: Float[np.ndarray, "free free"]) -> int:
     return np.shape(k_ff)[0] - numerical_rank(k_ff)
 
 
 def static_equilibrium(
     model: AbstractElasticModel,
-    y_guess,
-    prescribed=None,
-    forces=None,
+    y_guess: ArrayInput,
+    prescribed: ArrayInput | None = None,
+    forces: ArrayInput | None = None,
     *,
     rtol: float = 1e-10,
     atol: float = 1e-10,
@@ -106,6 +117,7 @@ def static_equilibrium(
         raise ValueError("prescribed fixes every coordinate: nothing to solve for")
 
     found = _solve(model, y_guess, jnp.asarray(free), F, rtol, atol, max_steps)
+    residual: Array | float
     y, residual, converged, steps, stiffness, total = found
     k_ff = np.asarray(stiffness)[np.ix_(free, free)]
     missing = _missing_constraints(k_ff)
@@ -134,36 +146,44 @@ def static_equilibrium(
         reaction=reaction,
         residual=jnp.asarray(residual),
         stiffness=jnp.asarray(k_ff),
-        mask=mask,
+        mask_tuple=tuple(tuple(bool(v) for v in row) for row in np.asarray(mask)),
         steps=int(steps),
     )
 
 
-def _full(y_free, args):
+def _full(y_free: Float[Array, " free"], args: _Args) -> State:
     model, y_guess, free, F = args
     return y_guess.reshape(-1).at[free].set(y_free).reshape(model.n_bodies, 6)
 
 
-def _imbalance(y_free, args):
+def _imbalance(y_free: Float[Array, " free"], args: _Args) -> Float[Array, " free"]:
     model, _, free, F = args
     y = _full(y_free, args)
     r = elastic_forces(model, y) - model.gravity_forces() - F
     return r.reshape(-1)[free]
 
 
-def _energy(y_free, args):
+def _energy(y_free: Float[Array, " free"], args: _Args) -> Scalar:
     model, _, _, F = args
     y = _full(y_free, args)
     return model.potential(y) + model.gravity_potential(y) - jnp.sum(F * y)
 
 
 @eqx.filter_jit
-def _solve(model, y_guess, free, F, rtol, atol, max_steps):
+def _solve(
+    model: AbstractElasticModel,
+    y_guess: State,
+    free: Int[Array, " free"],
+    F: State,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+) -> tuple[State, Scalar, Bool[Array, ""] | bool, Int[Array, ""], DofMatrix, State]:
     args = (model, y_guess, free, F)
     # Descend the potential energy first: its gradient is the force imbalance, so
     # a start where the stiffness is singular (a link unloaded and stiff only
     # along itself) still moves towards the loaded, stable equilibrium...
-    descent = optx.minimise(
+    descent: optx.Solution[Float[Array, " free"], None] = optx.minimise(
         _energy,
         optx.BFGS(rtol=rtol, atol=atol),
         y_guess.reshape(-1)[free],
@@ -172,7 +192,7 @@ def _solve(model, y_guess, free, F, rtol, atol, max_steps):
         throw=False,
     )
     # ...then polish the force balance with a trust-region Newton method.
-    solution = optx.least_squares(
+    solution: optx.Solution[Float[Array, " free"], None] = optx.least_squares(
         _imbalance,
         optx.LevenbergMarquardt(rtol=rtol, atol=atol),
         descent.value,

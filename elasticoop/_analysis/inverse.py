@@ -3,18 +3,25 @@
 import jax
 import jax.numpy as jnp
 
-from .._custom_types import StateSeries
+from .._custom_types import ArrayInput, StateSeries
 from .._lagrange import inverse_dynamics
 from .._models import AbstractElasticModel
 from .._validation import as_float_array
 
 
 @jax.jit
-def _over_time(model, y, ydot, yddot):
+def _over_time(
+    model: AbstractElasticModel,
+    y: StateSeries,
+    ydot: StateSeries,
+    yddot: StateSeries,
+) -> StateSeries:
     return jax.vmap(inverse_dynamics, in_axes=(None, 0, 0, 0))(model, y, ydot, yddot)
 
 
-def inverse_dynamics_series(model: AbstractElasticModel, y, ydot, yddot) -> StateSeries:
+def inverse_dynamics_series(
+    model: AbstractElasticModel, y: ArrayInput, ydot: ArrayInput, yddot: ArrayInput
+) -> StateSeries:
     """The generalized forces $F = W\\ddot Y + w - G$ that realise a motion, at
     every sample: use it to find the forces behind measured data, or to check them.
 

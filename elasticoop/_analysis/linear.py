@@ -1,15 +1,18 @@
 """Linearization about an equilibrium: $M\\ddot q + C\\dot q + Kq = Bu$."""
 
+from collections.abc import Iterable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._custom_types import State
+from .._custom_types import ArrayInput, State
 from .._lagrange import mass_matrix
 from .._models import AbstractElasticModel
-from .._validation import as_float_array
 from .._naming import body_names as body_names_of, dof_names
+from .._validation import as_float_array
 from ._common import as_mask
 
 
@@ -17,10 +20,10 @@ class StateSpace(eqx.Module):
     """$\\dot x = Ax + Bu$, $z = Cx + Du$ with $x = (q, \\dot q)$, $u$ the
     generalized forces on all $6m + 6$ coordinates and $z = q$."""
 
-    A: jax.Array
-    B: jax.Array
-    C: jax.Array
-    D: jax.Array
+    A: Float[Array, "states states"]
+    B: Float[Array, "states inputs"]
+    C: Float[Array, "outputs states"]
+    D: Float[Array, "outputs inputs"]
 
 
 class LinearModel(eqx.Module):
@@ -39,13 +42,18 @@ class LinearModel(eqx.Module):
     the free coordinates in the stacked $Y$); `names` (their names).
     """
 
-    M: jax.Array
-    C: jax.Array
-    K: jax.Array
-    B: jax.Array
+    M: Float[Array, "free free"]
+    C: Float[Array, "free free"]
+    K: Float[Array, "free free"]
+    B: Float[Array, "free dofs"]
     y_eq: State
-    free: np.ndarray
-    names: tuple
+    free_indices: tuple[int, ...] = eqx.field(static=True)
+    names: tuple[str, ...] = eqx.field(static=True)
+
+    @property
+    def free(self) -> Int[np.ndarray, " free"]:
+        """Indices of the free coordinates in the stacked $Y$."""
+        return np.array(self.free_indices, dtype=int)
 
     def state_space(self) -> StateSpace:
         """The first-order form for control design."""
@@ -58,7 +66,9 @@ class LinearModel(eqx.Module):
         D = jnp.zeros((f, self.B.shape[1]))
         return StateSpace(A, B, C, D)
 
-    def to_full(self, q) -> jax.Array:
+    def to_full(
+        self, q: Float[ArrayLike, "*batch free"]
+    ) -> Float[Array, "*batch bodies 6"]:
         """Free-coordinate vector(s) `(..., f)` to configurations `(..., bodies, 6)`
         about `y_eq`."""
         q = jnp.asarray(q)
@@ -67,7 +77,10 @@ class LinearModel(eqx.Module):
 
 
 def linearize(
-    model: AbstractElasticModel, y_eq, prescribed=None, body_names=None
+    model: AbstractElasticModel,
+    y_eq: ArrayInput,
+    prescribed: ArrayInput | None = None,
+    body_names: Iterable[str] | None = None,
 ) -> LinearModel:
     """The linear model about `y_eq` with the `prescribed` coordinates fixed.
 
@@ -100,6 +113,6 @@ def linearize(
         K=0.5 * (K + K.T)[index],
         B=B,
         y_eq=y_eq,
-        free=free,
+        free_indices=tuple(int(i) for i in free),
         names=tuple(names[i] for i in free),
     )

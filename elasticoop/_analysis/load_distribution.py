@@ -22,8 +22,9 @@ $f_M + f_I = f$) for every $\\ell$, only the share between the parts depends on 
 
 The grasp wrenches of a driven run (`grasp_wrenches`) are the reactions of the
 prescribed contact bodies, with the contact bodies counted as part of the load.
-The appendix's springs are not rotation invariant (MODEL.md): with unequal
-$c_x, c_y, c_z$ a link force is not along the link, and Euler-angle springs between
+The appendix's springs are not rotation invariant (docs/model.md, section 3.4):
+with unequal $c_x, c_y, c_z$ a link force is not along the link, and Euler-angle
+springs between
 differently oriented bodies exert unequal physical torques, so $Gf$ then differs
 from the rate of the assembly's angular momentum by these internal moments.
 """
@@ -32,21 +33,25 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
+from .._custom_types import ArrayInput, Matrix3, Validated, Vector3, Vector6
 from .._trajectory import Trajectory
 from .._validation import as_float_array
 
 
-def _skew(v):
+def _skew(v: Vector3) -> Matrix3:
     x, y, z = v
     return jnp.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def grasp_matrix(points, center) -> jax.Array:
+def grasp_matrix(
+    points: Float[ArrayLike, "m 3"], center: Float[ArrayLike, "3"]
+) -> Float[Array, "6 grasp_dofs"]:
     """$G$, shape `(6, 6m)`, for grasp points `(m, 3)` and object point `(3,)`."""
     points = jnp.asarray(points)
 
-    def block(p):
+    def block(p: Vector3) -> Float[Array, "6 6"]:
         top = jnp.concatenate([jnp.eye(3), jnp.zeros((3, 3))], axis=1)
         bottom = jnp.concatenate([_skew(p - center), jnp.eye(3)], axis=1)
         return jnp.concatenate([top, bottom])
@@ -64,11 +69,11 @@ class LoadDistribution(eqx.Module):
     - `internal`: $f_I$ per grasp, `(..., m, 6)`.
     """
 
-    object_wrench: jax.Array
-    motion: jax.Array
-    internal: jax.Array
+    object_wrench: Float[Array, "*batch 6"]
+    motion: Float[Array, "*batch m 6"]
+    internal: Float[Array, "*batch m 6"]
 
-    def internal_share(self) -> jax.Array:
+    def internal_share(self) -> Float[Array, "*batch"]:
         """$|f_I| / (|f_M| + |f_I|)$ of the grasp forces (force parts only), the
         fraction of the manipulators' effort that only squeezes the object,
         shape `(...)`."""
@@ -77,7 +82,12 @@ class LoadDistribution(eqx.Module):
         return fi / jnp.maximum(fm + fi, jnp.finfo(fm.dtype).tiny)
 
 
-def load_distribution(wrenches, points, center, length=None) -> LoadDistribution:
+def load_distribution(
+    wrenches: ArrayInput,
+    points: ArrayInput,
+    center: ArrayInput,
+    length: Validated[float | None] = None,
+) -> LoadDistribution:
     """Split grasp wrenches into motion and internal parts.
 
     **Arguments:**
@@ -116,8 +126,14 @@ def load_distribution(wrenches, points, center, length=None) -> LoadDistribution
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), flat)
 
 
-def _split(wrenches, points, center, length):
+def _split(
+    wrenches: Float[Array, "m 6"],
+    points: Float[Array, "m 3"],
+    center: Vector3,
+    length: float | None,
+) -> LoadDistribution:
     m = wrenches.shape[0]
+    ell: Array | float
     if length is None:
         ell = jnp.mean(jnp.linalg.norm(points - center, axis=-1))
         ell = jnp.where(ell > 0, ell, 1.0)
@@ -137,7 +153,7 @@ def _split(wrenches, points, center, length):
     )
 
 
-def grasp_wrenches(traj: Trajectory) -> jax.Array:
+def grasp_wrenches(traj: Trajectory) -> Float[Array, "times m 6"]:
     """The wrenches the manipulators exert at the grasps, $(F_i, \\tau_i)$ in world
     axes, shape `(times, m, 6)`: the reactions of the prescribed coordinates of the
     contact bodies (or, where a contact body is not prescribed, nothing) converted
@@ -150,7 +166,7 @@ def grasp_wrenches(traj: Trajectory) -> jax.Array:
         )
     rotation = traj.model.rotation
 
-    def physical(angles, q):
+    def physical(angles: Vector3, q: Vector6) -> Vector6:
         R = rotation.matrix(angles)
         L = rotation.angular_velocity_matrix(angles)
         torque = R @ jnp.linalg.solve(L.T, q[3:])
@@ -160,7 +176,9 @@ def grasp_wrenches(traj: Trajectory) -> jax.Array:
     return jax.vmap(jax.vmap(physical))(contact_y[..., 3:], traj.reaction[:, 1:])
 
 
-def trajectory_load_distribution(traj: Trajectory, length=None) -> LoadDistribution:
+def trajectory_load_distribution(
+    traj: Trajectory, length: Validated[float | None] = None
+) -> LoadDistribution:
     """`load_distribution` of `grasp_wrenches(traj)` about the object's position,
     at every output time."""
     wrenches = grasp_wrenches(traj)

@@ -3,6 +3,7 @@
 import equinox as eqx
 import numpy as np
 import scipy.linalg
+from jaxtyping import Float, Inexact
 
 from .linear import LinearModel
 
@@ -25,14 +26,14 @@ class Modes(eqx.Module):
     - `names`: names of the free coordinates (rows of `shapes`).
     """
 
-    frequencies: np.ndarray
-    damping_ratios: np.ndarray
-    shapes: np.ndarray
-    eigenvalues: np.ndarray
-    names: tuple
+    frequencies: Float[np.ndarray, " modes"]
+    damping_ratios: Float[np.ndarray, " modes"]
+    shapes: Float[np.ndarray, "modes modes"]
+    eigenvalues: Inexact[np.ndarray, " states"]
+    names: tuple[str, ...] = eqx.field(static=True)
 
     @property
-    def frequencies_hz(self) -> np.ndarray:
+    def frequencies_hz(self) -> Float[np.ndarray, " modes"]:
         return self.frequencies / (2 * np.pi)
 
     def table(self, count: int | None = None) -> str:

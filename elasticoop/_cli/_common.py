@@ -3,15 +3,83 @@
 import argparse
 import contextlib
 import inspect
+import math
+import os
+import pathlib
 import sys
 import time
+import traceback
+
+import numpy as np
 
 from .._config import ScenarioError, load_scenario
 from .._simulate import SimulationError, simulate
 
 EXIT_OK = 0
-EXIT_USAGE = 2  # bad arguments or an invalid scenario file
+EXIT_BUG = 1  # a bug in elasticoop (or a dependency): shown with its traceback
+EXIT_USAGE = 2  # bad arguments, an invalid scenario file, a file that cannot be used
 EXIT_SIMULATION = 3  # the simulation stopped early (gimbal lock, collapsed link, ...)
+
+# The arguments, over all sub-commands, that name files or folders: an `OSError`
+# about one of them (or about a file inside or a folder above one) is the user's.
+PATH_ARGUMENTS = ("scenario", "scenarios", "output", "copy")
+
+
+class UserError(Exception):
+    """A problem with what the user asked for that argparse cannot check (e.g. an
+    option value that only makes sense for a given scenario). Sub-commands raise
+    it with a message for the user: reported as `elasticoop COMMAND: error:
+    MESSAGE`, exit code 2, no traceback."""
+
+
+def positive_float(text: str) -> float:
+    """argparse `type` for a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse `type` for an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def named_paths(args) -> list[pathlib.Path]:
+    """The files and folders named on the command line (`PATH_ARGUMENTS`)."""
+    paths = []
+    for name in PATH_ARGUMENTS:
+        value = getattr(args, name, None)
+        for item in value if isinstance(value, list | tuple) else [value]:
+            if isinstance(item, str | os.PathLike) and str(item):
+                paths.append(_absolute(item))
+    return paths
+
+
+def _absolute(path) -> pathlib.Path:
+    return pathlib.Path(os.path.abspath(os.path.expanduser(os.fsdecode(path))))
+
+
+def _about_named_path(err: OSError, paths) -> bool:
+    """Whether `err` is about a file or folder named on the command line, a file
+    inside one, or a folder above one (`mkdir` of an output folder's parents)."""
+    for name in (err.filename, err.filename2):
+        if not isinstance(name, str | bytes | os.PathLike) or not os.fsdecode(name):
+            continue
+        path = _absolute(name)
+        for given in paths:
+            if path == given or given in path.parents or path in given.parents:
+                return True
+    return False
 
 
 class _Outcome:
@@ -19,25 +87,49 @@ class _Outcome:
 
 
 @contextlib.contextmanager
-def report_user_errors(command: str):
-    """Turn user errors into a one-paragraph message on stderr and an exit code
-    (no traceback): invalid scenarios and arguments give 2, simulation failures 3.
-    Anything else is a bug in elasticoop and keeps its traceback."""
+def report_user_errors(command: str, *, debug: bool = False, paths=()):
+    """Turn the user's errors into a one-paragraph message on stderr and an exit
+    code, without a traceback: an invalid scenario, a `UserError`, or an `OSError`
+    about one of `paths` (the files and folders the user named) gives 2, a
+    simulation that stops early 3. Anything else is a bug in elasticoop: its
+    traceback is shown, and the exit code is 1. With `debug`, every error shows
+    its traceback."""
     outcome = _Outcome()
+    prefix = f"elasticoop {command}"
+
+    def report(message: str, code: int) -> None:
+        if debug:
+            traceback.print_exc()
+        print(f"{prefix}: {message}", file=sys.stderr)
+        outcome.code = code
+
     try:
         yield outcome
-    except ScenarioError as err:
-        print(f"elasticoop {command}: error: {err}", file=sys.stderr)
-        outcome.code = EXIT_USAGE
+    except (ScenarioError, UserError) as err:
+        report(f"error: {err}", EXIT_USAGE)
     except SimulationError as err:
-        print(f"elasticoop {command}: simulation stopped early: {err}", file=sys.stderr)
-        outcome.code = EXIT_SIMULATION
-    except (ValueError, OSError) as err:
-        print(f"elasticoop {command}: error: {err}", file=sys.stderr)
-        outcome.code = EXIT_USAGE
+        report(f"simulation stopped early: {err}", EXIT_SIMULATION)
+    except OSError as err:
+        if _about_named_path(err, paths):
+            report(f"error: {err}", EXIT_USAGE)
+        else:
+            _report_bug(prefix, outcome)
     except KeyboardInterrupt:
-        print(f"elasticoop {command}: interrupted", file=sys.stderr)
-        outcome.code = 130
+        report("interrupted", 130)
+    except Exception:
+        _report_bug(prefix, outcome)
+
+
+def _report_bug(prefix: str, outcome: _Outcome) -> None:
+    traceback.print_exc()
+    kind, err, _ = sys.exc_info()
+    print(
+        f"{prefix}: internal error ({kind.__name__}: {err}). This is a bug in "
+        "elasticoop, not a problem with your input: please report it with the "
+        "traceback above.",
+        file=sys.stderr,
+    )
+    outcome.code = EXIT_BUG
 
 
 def common_options() -> argparse.ArgumentParser:
@@ -70,9 +162,26 @@ def progress_overrides(args) -> dict:
     return {"progress_meter": diffrax.TqdmProgressMeter()}
 
 
+def check_options(scenario, args) -> None:
+    """Raise `UserError` for options that do not fit the scenario: `--snapshots`
+    instants outside its time span (when plots are drawn)."""
+    times = getattr(args, "snapshots", None)
+    if not times or getattr(args, "no_plots", False):
+        return
+    t0, t1 = (float(t) for t in np.asarray(scenario.ts)[[0, -1]])
+    outside = [t for t in times if not t0 <= t <= t1]
+    if outside:
+        raise UserError(
+            f"--snapshots: {', '.join(f'{t:g}' for t in outside)} s lie outside the "
+            f"scenario's time span, {t0:g} to {t1:g} s"
+        )
+
+
 def simulate_scenario(scenario, args):
-    """Run a scenario; returns `(trajectory, wall time [s], error or None)`. A
-    `SimulationError` is returned with its partial trajectory, not raised."""
+    """Check the options against the scenario (`check_options`), then run it;
+    returns `(trajectory, wall time [s], error or None)`. A `SimulationError` is
+    returned with its partial trajectory, not raised."""
+    check_options(scenario, args)
     start = time.perf_counter()
     try:
         traj = scenario.simulate(**progress_overrides(args))
@@ -90,7 +199,9 @@ def load(path):
 def write_results(scenario, traj, wall_time, outdir, args) -> list:
     """Write netCDF, CSV, JSON summary and (unless `--no-plots`) PNG plots and an
     optional animation for one run; returns the paths written."""
-    from .._export import scenario_summary, trajectory_to_xarray, write_outputs
+    from .._io.files import write_outputs
+    from .._io.summary import scenario_summary
+    from .._io.xarray import trajectory_to_xarray
 
     ds = trajectory_to_xarray(
         traj,
@@ -114,16 +225,22 @@ def write_results(scenario, traj, wall_time, outdir, args) -> list:
 def write_plots(scenario, traj, outdir, args) -> list:
     import pathlib
 
-    from .. import _plotting as plots
+    from .._plotting import (
+        plot_coordinates,
+        plot_elastic_wrench,
+        plot_energy,
+        plot_snapshots,
+        save_animation,
+    )
 
     outdir = pathlib.Path(outdir)
     figures = {
-        "coordinates.png": plots.plot_coordinates(traj, scenario.names),
-        "elastic_wrench.png": plots.plot_elastic_wrench(
+        "coordinates.png": plot_coordinates(traj, scenario.names),
+        "elastic_wrench.png": plot_elastic_wrench(
             traj, scenario.connection_names or None, scenario.names
         ),
-        "energy.png": plots.plot_energy(traj),
-        "snapshots.png": plots.plot_snapshots(
+        "energy.png": plot_energy(traj),
+        "snapshots.png": plot_snapshots(
             traj, times=getattr(args, "snapshots", None), body_names=scenario.names
         ),
     }
@@ -139,8 +256,6 @@ def write_plots(scenario, traj, outdir, args) -> list:
             say(args, "  ffmpeg not found: writing the animation as GIF instead of MP4")
             animation = "gif"
         paths.append(
-            plots.save_animation(
-                traj, outdir / f"animation.{animation}", scenario.names
-            )
+            save_animation(traj, outdir / f"animation.{animation}", scenario.names)
         )
     return paths

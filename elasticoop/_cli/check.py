@@ -29,7 +29,7 @@ def register(subparsers) -> None:
     parser.set_defaults(func=execute)
 
 
-def describe(scenario) -> list[str]:
+def scenario_lines(scenario) -> list[str]:
     """A few lines describing a loaded scenario."""
     model = scenario.model
     kind = type(model).__name__
@@ -62,9 +62,11 @@ def execute(args) -> int:
         except ScenarioError as err:
             errors.append(err)
             continue
-        say(args, f"{path}: valid scenario '{scenario.name}'", *describe(scenario))
+        say(
+            args, f"{path}: valid scenario '{scenario.name}'", *scenario_lines(scenario)
+        )
     if len(errors) == 1 and len(args.scenarios) == 1:
         raise errors[0]
-    for err in errors:
-        print(f"elasticoop check: error: {err}", file=sys.stderr)
+    for error in errors:
+        print(f"elasticoop check: error: {error}", file=sys.stderr)
     return EXIT_USAGE if errors else EXIT_OK

@@ -6,7 +6,14 @@ import time
 
 from .._examples import default_scenario
 from .._io.summary import format_summary, scenario_summary
-from ._common import EXIT_OK, common_options, say, simulate_scenario, write_results
+from ._common import (
+    EXIT_OK,
+    common_options,
+    positive_float,
+    say,
+    simulate_scenario,
+    write_results,
+)
 
 NAME = "demo"
 
@@ -23,8 +30,12 @@ def register(subparsers) -> None:
             "With -o, also write the results and plots as 'run' does."
         ),
     )
-    parser.add_argument("--rtol", type=float, default=None, help="relative tolerance")
-    parser.add_argument("--atol", type=float, default=None, help="absolute tolerance")
+    parser.add_argument(
+        "--rtol", type=positive_float, default=None, help="relative tolerance"
+    )
+    parser.add_argument(
+        "--atol", type=positive_float, default=None, help="absolute tolerance"
+    )
     parser.add_argument(
         "-o", "--output", metavar="OUTDIR", help="also write results and plots here"
     )

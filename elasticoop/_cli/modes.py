@@ -8,7 +8,7 @@ import numpy as np
 from .._analysis import linearize, modes, static_equilibrium
 from .._forces import ConstantForce
 from .._plotting import plot_mode_shapes
-from ._common import EXIT_OK, common_options, load, say
+from ._common import EXIT_OK, UserError, common_options, load, positive_int, say
 
 NAME = "modes"
 
@@ -33,7 +33,7 @@ def register(subparsers) -> None:
         "-o", "--output", metavar="OUTDIR", help="write modes.json and modes.png here"
     )
     parser.add_argument(
-        "--count", type=int, default=4, help="mode shapes to plot (default 4)"
+        "--count", type=positive_int, default=4, help="mode shapes to plot (default 4)"
     )
     parser.set_defaults(func=execute)
 
@@ -55,8 +55,11 @@ def execute(args) -> int:
         mask = np.zeros((scenario.model.n_bodies, 6), bool)
         mask[1:] = True
         say(args, "no [prescribed] table: the contact bodies are held")
-    eq = static_equilibrium(scenario.model, scenario.y_init, mask, forces)
-    result = modes(linearize(scenario.model, eq.y, mask, scenario.names))
+    try:
+        eq = static_equilibrium(scenario.model, scenario.y_init, mask, forces)
+        result = modes(linearize(scenario.model, eq.y, mask, scenario.names))
+    except ValueError as err:  # the scenario has no unique, stable equilibrium
+        raise UserError(f"{args.scenario}: {err}") from err
     say(
         args,
         f"{args.scenario}: static equilibrium found in {eq.steps} iterations "

@@ -4,6 +4,7 @@ against each other, and build the model, forces and prescribed coordinates."""
 import math
 import pathlib
 import tomllib
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +12,7 @@ from pydantic import TypeAdapter, ValidationError
 
 from .._body import RigidBody
 from .._forces import ConstantForce, PoseTracking, SampledForce
-from .._models import Connection, ImmobileModel, MobileModel
+from .._models import AbstractElasticModel, Connection, ImmobileModel, MobileModel
 from .._models.immobile import check_stiffness, check_symmetric_psd
 from .._naming import coordinate_names
 from .._options import GIMBAL_TOL
@@ -25,9 +26,10 @@ from .schema import REQUIRED, SECTIONS, TOP_LEVEL_KEYS, Name, ScenarioInfo, Solv
 # generalized torques conjugate to the three Euler angles [N m].
 FORCE_COMPONENTS = ("fx", "fy", "fz", "q1", "q2", "q3")
 
-_ADAPTERS = {
+_ADAPTERS: dict[str, TypeAdapter[Any]] = {
     name: TypeAdapter(
-        {"table": cls, "array": list[cls], "by_body": dict[Name, cls]}[shape]
+        # `cls` is a table class: a type, though a variable to type checkers.
+        {"table": cls, "array": list[cls], "by_body": dict[Name, cls]}[shape]  # type: ignore[valid-type]
     )
     for name, (cls, shape) in SECTIONS.items()
 }
@@ -66,6 +68,8 @@ def _array_label(section: str, k: int, entry) -> str:
 
 
 class _Builder:
+    y_init: np.ndarray | None
+
     def __init__(self, raw, source, base_dir):
         self.raw = raw
         self.source = source
@@ -437,7 +441,9 @@ class _Builder:
             unloaded = self.y_init
         self.ts = self.check_time()
         kind = self.model_table.kind if self.model_table else None
-        conns, matrices = None, None
+        # Set for the model's kind (a missing one is a problem, raised below).
+        conns: Any = None
+        matrices: Any = None
         if kind == "mobile":
             if "immobile" in self.raw:
                 self.add(
@@ -466,6 +472,7 @@ class _Builder:
 
         bodies = self.rigid_bodies
         gravity = self.model_table.gravity
+        model: AbstractElasticModel
         try:
             if kind == "mobile":
                 model = MobileModel(bodies, conns[0], gravity, convention)

@@ -29,6 +29,8 @@ def read_matrix(base_dir: pathlib.Path, name: str) -> np.ndarray:
             arr = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
         else:
             raise ValueError(f"file '{name}': use a .npy or .csv file")
+    except OSError as err:
+        raise ValueError(f"file '{name}' could not be read: {err}") from None
     except ValueError as err:
         if str(err).startswith("file"):
             raise
@@ -57,6 +59,8 @@ def read_series(base_dir: pathlib.Path, name: str):
         raise ValueError(f"file '{name}' not found (looked for {path})")
     try:
         frame = pd.read_csv(path, comment="#", skipinitialspace=True)
+    except OSError as err:
+        raise ValueError(f"file '{name}' could not be read: {err}") from None
     except (ValueError, pd.errors.ParserError) as err:
         message = str(err).strip().splitlines()[0] if str(err).strip() else "empty"
         raise ValueError(f"file '{name}' is not a readable CSV ({message})") from None

@@ -1,7 +1,7 @@
 """Collect every problem of a scenario file and report them in one message."""
 
 import difflib
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from .schema import SECTIONS, TOP_LEVEL_KEYS, Table
 
@@ -70,7 +70,9 @@ def _message(err: dict) -> str:
     return f"{msg[0].lower()}{msg[1:]} (got {_show(err.get('input'))})"
 
 
-def locate(section: str, shape: str, raw, loc: tuple) -> tuple[str, str]:
+def locate(
+    section: str, shape: str, raw, loc: tuple[Any, ...] | list[Any]
+) -> tuple[str, str]:
     """Table and key of a pydantic error location within one top-level section.
 
     Leading locations whose raw value is a TOML table become the table path

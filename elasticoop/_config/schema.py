@@ -66,7 +66,8 @@ class _Angles(Table):
     def to_radians(self) -> list[float]:
         if self.radians is not None:
             return list(self.radians)
-        return [math.radians(a) for a in self.degrees]
+        # one of the two is given (checked when the table is read)
+        return [math.radians(a) for a in self.degrees]  # type: ignore[union-attr]
 
 
 Angles = Annotated[_Angles, BeforeValidator(_angle_unit_stated)]
@@ -209,7 +210,7 @@ class TimeTable(Table):
 class SolverTable(Table):
     """`[solver]`: diffrax solver by name and the step-size controller's tolerances."""
 
-    name: Literal[SOLVERS] = "tsit5"
+    name: Literal[SOLVERS] = "tsit5"  # type: ignore[valid-type]  # the solver names
     rtol: Positive = 1e-8
     atol: Positive = 1e-10
     max_steps: Annotated[int, Field(ge=1)] = 100_000

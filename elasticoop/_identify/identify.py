@@ -114,6 +114,7 @@ def identify(
     experiments = check_experiments(model, experiments)
     free = free_parameters(model, where, transform)
     optimizer, method_name = _optimizer(method)
+    value: float
     for name, value in (("max_steps", max_steps),):
         if not (isinstance(value, int) and value >= 1):
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -162,6 +163,7 @@ def identify(
         if init == "model":
             raise
     evaluated = []
+    u: np.ndarray | jax.Array
     for label, p in candidates:
         u = free.unconstrained(p)
         value, ok, steps = _evaluate(jnp.asarray(u), problem)  # inf if failed

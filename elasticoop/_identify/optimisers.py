@@ -1,12 +1,16 @@
 """The two routes to the output-error optimum, each driven step by step from Python
 (so that progress is shown and every step is recorded):
 
-- `levenberg_marquardt`: `optimistix.LevenbergMarquardt` on the residual vector,
-  with the Jacobian from forward-mode sensitivities (one integration carrying one
-  tangent per parameter, `diffrax.ForwardMode`). A trial step whose loss is not
-  lower (an infinite loss for a failed simulation) is rejected by the trust region,
-  which shrinks the step; such a trial costs one plain simulation, as its
-  Jacobian is not computed.
+- `levenberg_marquardt`: Levenberg-Marquardt on the residual vector, assembled as
+  `optimistix.LevenbergMarquardt` is (its public parts: the trust region
+  `optimistix.ClassicalTrustRegion` and the damped Gauss-Newton step
+  `optimistix.DampedNewtonDescent`, solved by QR), with the Jacobian from
+  forward-mode sensitivities (one integration carrying one tangent per parameter,
+  `diffrax.ForwardMode`). Each step's accepted loss, gradient, acceptance and
+  trial loss are explicit outputs of one compiled step function. A trial step
+  whose loss is not lower (an infinite loss for a failed simulation) is rejected
+  by the trust region, which shrinks the step; such a trial costs one plain
+  simulation, as its Jacobian is not computed.
 - `optax_minimise`: any optax optimiser on $\\tfrac12\\sum r^2$ with reverse-mode
   gradients through `simulate` (diffrax's `RecursiveCheckpointAdjoint`); the
   default `optax.lbfgs()` uses a zoom line search, which treats an infinite or NaN
@@ -17,18 +21,21 @@
 
 import dataclasses
 import time
+from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optax
 import optimistix as optx
 
 from .residuals import (
-    Problem,
+    FitProblem,
     loss,
-    residuals_fwd,
+    residuals,
+    residuals_and_jacobian,
     with_jacobian_loss_limit,
     with_scaling,
 )
@@ -74,48 +81,101 @@ class _Progress:
             )
 
 
-def _fn(v, problem):
+class _LMState(eqx.Module):
+    """The state of the Levenberg-Marquardt iteration, in the solver's variables
+    $v$: the last accepted point and the residuals and Jacobian there, the next
+    trial point, and the states of the trust region and of the descent (passed
+    through unread)."""
+
+    first_step: jax.Array
+    y: jax.Array
+    y_eval: jax.Array
+    f_info: optx.FunctionInfo.ResidualJac
+    search_state: Any
+    descent_state: Any
+
+
+def _lm_parts():
+    """The trust region and the damped Gauss-Newton descent that make up
+    `optimistix.LevenbergMarquardt` (with its default QR solve)."""
+    return optx.ClassicalTrustRegion(), optx.DampedNewtonDescent(linear_solver=lx.QR())
+
+
+def _f_info(v, problem) -> optx.FunctionInfo.ResidualJac:
+    """Residuals and forward-mode Jacobian with respect to $v$, where
+    $u = $ `u_offset + u_scale * v`."""
     u = problem.u_offset + problem.u_scale * v
-    return residuals_fwd(u, problem=problem), None
-
-
-class _TrialRecord:
-    """Receives the loss of each trial point from the solver's `verbose` hook."""
-
-    loss = 0.0
-
-    def set(self, value):
-        self.loss = float(value)
-
-
-_TRIAL = _TrialRecord()
-
-
-def _record_trial(**fields):
-    # optimistix calls `verbose` with (name, value) pairs; keep the trial's loss
-    jax.debug.callback(_TRIAL.set, fields["loss_this_step"][1], ordered=True)
+    r, J = residuals_and_jacobian(u, problem)
+    J = lx.MatrixLinearOperator(J * problem.u_scale[None, :])
+    return optx.FunctionInfo.ResidualJac(r, J)
 
 
 @eqx.filter_jit
-def _lm_init(solver, u, problem):
-    f_struct = jax.eval_shape(lambda: _fn(u, problem)[0])
-    return solver.init(_fn, u, problem, {}, f_struct, None, frozenset())
+def _lm_init(search, descent, v, problem) -> _LMState:
+    r = eqx.filter_eval_shape(residuals, v, problem)
+    f_info = optx.FunctionInfo.ResidualJac(
+        jnp.zeros(r.shape, r.dtype),
+        lx.MatrixLinearOperator(jnp.zeros(r.shape + v.shape, r.dtype)),
+    )
+    f_info_struct = eqx.filter_eval_shape(lambda: f_info)
+    return _LMState(
+        first_step=jnp.array(True),
+        y=v,
+        y_eval=v,
+        f_info=f_info,
+        search_state=search.init(v, f_info_struct),
+        descent_state=descent.init(v, f_info_struct),
+    )
 
 
 @eqx.filter_jit
-def _lm_step(solver, u, state, problem):
-    u_new, state, _ = solver.step(_fn, u, problem, {}, state, frozenset())
-    done, result = solver.terminate(_fn, u_new, problem, {}, state, frozenset())
-    info = state.f_info
-    value = 0.5 * jnp.sum(info.residual**2)
-    grad = info.jac.transpose().mv(info.residual)
-    accepted = state.num_steps_since_acceptance == 0
-    return u_new, state, value, grad, accepted, done, result
+def _lm_step(search, descent, state: _LMState, problem):
+    """Simulate at the trial point, let the trust region accept or reject it, and
+    propose the next trial point. Returns the new state, the loss and its gradient
+    at the (new) accepted point, whether the trial was accepted, the loss at the
+    trial point ($+\\infty$ where a simulation failed) and the result code."""
+    # Trial points with a higher loss than the accepted one are rejected anyway:
+    # skip their Jacobians (the first evaluation always computes it).
+    limit = jnp.where(
+        state.first_step, problem.jacobian_loss_limit, state.f_info.as_min()
+    )
+    f_eval_info = _f_info(state.y_eval, with_jacobian_loss_limit(problem, limit))
+    step_size, accept, search_result, search_state = search.step(
+        state.first_step,
+        state.y,
+        state.y_eval,
+        state.f_info,
+        f_eval_info,
+        state.search_state,
+    )
+    y, f_info, descent_state = jax.lax.cond(
+        accept,
+        lambda: (
+            state.y_eval,
+            f_eval_info,
+            descent.query(state.y_eval, f_eval_info, state.descent_state),
+        ),
+        lambda: (state.y, state.f_info, state.descent_state),
+    )
+    y_diff, descent_result = descent.step(step_size, descent_state)
+    result = optx.RESULTS.where(
+        search_result == optx.RESULTS.successful, descent_result, search_result
+    )
+    state = _LMState(
+        first_step=jnp.array(False),
+        y=y,
+        y_eval=y + y_diff,
+        f_info=f_info,
+        search_state=search_state,
+        descent_state=descent_state,
+    )
+    value, grad = f_info.as_min(), f_info.compute_grad()
+    return state, value, grad, accept, f_eval_info.as_min(), result
 
 
-@eqx.filter_jit
-def _lm_final(state):
-    return state.f_info.residual, state.f_info.jac.as_matrix()
+def _lm_final(state: _LMState):
+    """Residuals and Jacobian (with respect to $v$) at the accepted point."""
+    return np.asarray(state.f_info.residual), np.asarray(state.f_info.jac.as_matrix())
 
 
 def _small_step(u, u_new, value, value_new, xtol, ftol) -> bool:
@@ -123,19 +183,19 @@ def _small_step(u, u_new, value, value_new, xtol, ftol) -> bool:
     entry; a relative change for log-parameters) or lowers the loss by at most
     `ftol` times the loss."""
     du = float(np.max(np.abs(np.asarray(u_new) - np.asarray(u))))
-    return du <= xtol or (value - value_new) <= ftol * abs(value)
+    return bool(du <= xtol or (value - value_new) <= ftol * abs(value))
 
 
 def levenberg_marquardt(
-    problem: Problem, u0, *, xtol, ftol, max_steps, progress, n_experiments
+    problem: FitProblem, u0, *, xtol, ftol, max_steps, progress, n_experiments
 ) -> Trace:
     """Minimise $\\tfrac12|r(u)|^2$ by Levenberg-Marquardt (optimistix).
 
     Every solver step simulates all experiments once (with sensitivities) at a
     trial point; a trial that does not lower the loss is rejected."""
     start = time.perf_counter()
-    # optimistix's own (Cauchy) test is switched off: ours is `_small_step`.
-    solver = optx.LevenbergMarquardt(rtol=0.0, atol=0.0, verbose=_record_trial)
+    # The convergence test is ours (`_small_step`), not optimistix's Cauchy test.
+    search, descent = _lm_parts()
     u = jnp.asarray(u0)
     trace = Trace(u=np.asarray(u))
     # optimistix damps with lambda I, lambda = 1 at the start. Solve instead for
@@ -143,31 +203,28 @@ def levenberg_marquardt(
     # scales), and multiply the residuals by c so that lambda = 1 is Marquardt's
     # lambda_0 = TAU max diag(J^T J). One extra evaluation at u0; the scalings are
     # traced values, so nothing recompiles.
-    state = _lm_init(solver, u, problem)
-    _, state, value, *_ = _lm_step(solver, u, state, problem)
+    state = _lm_init(search, descent, u, problem)
+    state, value, *_ = _lm_step(search, descent, state, problem)
     trace.n_simulations += n_experiments
     if not np.isfinite(float(value)):
         trace.wall_time = time.perf_counter() - start
         return trace  # the start failed: `identify` reports it
     _, J0 = _lm_final(state)
-    norms = np.sqrt(np.sum(np.asarray(J0) ** 2, axis=0))
+    norms = np.sqrt(np.sum(J0**2, axis=0))
     live = norms > 1e-12 * max(float(np.max(norms)), 1e-300)
     u_scale = np.where(live, 1.0 / np.where(live, norms, 1.0), 1.0)
     scale = 1.0 / np.sqrt(TAU)
     problem = with_scaling(problem, scale, u, u_scale)
     u0_arr = u
-    v = jnp.zeros_like(u)
-    state = _lm_init(solver, v, problem)
+    state = _lm_init(search, descent, jnp.zeros_like(u), problem)
     show = _Progress(progress, "Levenberg-Marquardt, forward-mode Jacobian")
     rejected_in_row = 0
     for _ in range(max_steps):
         u_prev = u
-        v, state, value, gnorm, accepted, _, result = _lm_step(
-            solver, v, state, problem
+        state, value, gnorm, accepted, trial_loss, result = _lm_step(
+            search, descent, state, problem
         )
-        # Trial points with a higher loss are rejected: skip their Jacobians.
-        problem = with_jacobian_loss_limit(problem, value)
-        u = u0_arr + u_scale * v
+        u = u0_arr + u_scale * state.y
         trace.n_simulations += n_experiments
         value = float(value) / scale**2
         gnorm = float(np.linalg.norm(np.asarray(gnorm) / u_scale)) / scale**2
@@ -185,7 +242,7 @@ def levenberg_marquardt(
         else:
             rejected_in_row += 1
             trace.n_rejected += 1
-            if not np.isfinite(_TRIAL.loss):
+            if not np.isfinite(float(trial_loss)):
                 trace.n_failed_trials += 1
                 show(trace.n_iterations, value, gnorm, "trial failed")
         if result != optx.RESULTS.successful:
@@ -202,8 +259,8 @@ def levenberg_marquardt(
     else:
         trace.reason = f"reached max_steps = {max_steps} solver steps"
     r, Jv = _lm_final(state)
-    trace.residual = np.asarray(r) / scale
-    trace.jacobian = np.asarray(Jv) / scale / u_scale[None, :]
+    trace.residual = r / scale
+    trace.jacobian = Jv / scale / u_scale[None, :]
     trace.u = np.asarray(u)
     trace.wall_time = time.perf_counter() - start
     return trace
@@ -237,7 +294,15 @@ def _plain_update(optimizer, u, state, grad):
 
 
 def optax_minimise(
-    problem: Problem, u0, optimizer, *, xtol, ftol, max_steps, progress, n_experiments
+    problem: FitProblem,
+    u0,
+    optimizer,
+    *,
+    xtol,
+    ftol,
+    max_steps,
+    progress,
+    n_experiments,
 ) -> Trace:
     """Minimise $\\tfrac12|r(u)|^2$ with an optax optimiser and reverse-mode
     gradients, until a step is small (`_small_step`)."""

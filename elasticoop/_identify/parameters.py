@@ -7,6 +7,7 @@ $p = \\log(1 + e^u) > 0$, `Bounded`: $p = l + (h - l)\\,\\sigma(u) \\in (l, h)$,
 """
 
 import abc
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -94,7 +95,11 @@ def _check_range(p, lower, upper, name, what):
         )
 
 
-_NAMED = {"log": Log, "softplus": Softplus, "identity": Identity}
+_NAMED: dict[str, Callable[[], AbstractTransform]] = {
+    "log": Log,
+    "softplus": Softplus,
+    "identity": Identity,
+}
 
 
 def as_transform(value) -> AbstractTransform:

@@ -50,7 +50,7 @@ def _prepare(stacked: Experiment) -> _Data:
     return _Data(stacked, y, yw, ydot, ydw)
 
 
-class Problem(eqx.Module):
+class FitProblem(eqx.Module):
     """Everything the residuals depend on besides $u$ (a pytree; no closures)."""
 
     model: eqx.Module
@@ -66,17 +66,17 @@ class Problem(eqx.Module):
     jacobian_loss_limit: jax.Array
 
 
-def make_problem(model, free, experiments, options) -> Problem:
+def make_problem(model, free, experiments, options) -> FitProblem:
     groups = batch_experiments(experiments)
     order = tuple(k for indices, _ in groups for k in indices)
     batches = tuple(_prepare(stacked) for _, stacked in groups)
     one, zeros = jnp.ones((), jnp.float64), jnp.zeros(free.size, jnp.float64)
-    return Problem(
+    return FitProblem(
         model, free, batches, order, options, one, zeros, zeros + 1.0, one * jnp.inf
     )
 
 
-def with_scaling(problem: Problem, scale, u_offset, u_scale) -> Problem:
+def with_scaling(problem: FitProblem, scale, u_offset, u_scale) -> FitProblem:
     """The same problem with residuals multiplied by `scale` and the solver's
     variables $v$ mapped to $u = $ `u_offset + u_scale * v` (traced values: no
     recompilation)."""
@@ -88,7 +88,7 @@ def with_scaling(problem: Problem, scale, u_offset, u_scale) -> Problem:
     )
 
 
-def with_jacobian_loss_limit(problem: Problem, limit) -> Problem:
+def with_jacobian_loss_limit(problem: FitProblem, limit) -> FitProblem:
     """The same problem computing Jacobians only where the loss (of the scaled
     residuals) is at most `limit` (a traced value: no recompilation)."""
     return eqx.tree_at(
@@ -112,7 +112,7 @@ def _simulate_batch(model, data: _Data, options: SimulationOptions, adjoint):
     return jax.vmap(one)(data.experiments)
 
 
-def residuals_by_experiment(u, problem: Problem, adjoint=None):
+def residuals_by_experiment(u, problem: FitProblem, adjoint=None):
     """Residuals per batch, each `(batch, times, bodies, 6)` (or twice that length
     along the last axis with measured $\\dot Y$), whether each simulation
     succeeded and how many solver steps it took, both `(experiments,)` in batch
@@ -122,7 +122,7 @@ def residuals_by_experiment(u, problem: Problem, adjoint=None):
     for data in problem.batches:
         traj = _simulate_batch(model, data, problem.options, adjoint)
         r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
-        if data.ydot is not None:
+        if data.ydot is not None and data.ydot_weight is not None:  # set together
             rd = jnp.where(
                 data.ydot_weight > 0, (traj.ydot - data.ydot) * data.ydot_weight, 0.0
             )
@@ -135,20 +135,20 @@ def residuals_by_experiment(u, problem: Problem, adjoint=None):
     return out, jnp.concatenate(ok_all), jnp.concatenate(steps)
 
 
-def residuals(u, problem: Problem, adjoint=None) -> jax.Array:
+def residuals(u, problem: FitProblem, adjoint=None) -> jax.Array:
     """All residuals as one flat vector ($+\\infty$ for failed simulations)."""
     parts, _, _ = residuals_by_experiment(u, problem, adjoint)
     return jnp.concatenate([r.reshape(-1) for r in parts])
 
 
-def loss(u, problem: Problem) -> jax.Array:
+def loss(u, problem: FitProblem) -> jax.Array:
     """$\\tfrac12\\sum r^2$, differentiable in reverse mode (diffrax's default
     `RecursiveCheckpointAdjoint`)."""
     r = residuals(u, problem)
     return 0.5 * jnp.sum(r**2)
 
 
-def residuals_and_jacobian(u, problem: Problem):
+def residuals_and_jacobian(u, problem: FitProblem):
     """$r(u)$ and $J = \\partial r/\\partial u$ by forward-mode sensitivities
     (`jax.jacfwd` through `simulate` with `diffrax.ForwardMode()`): one integration
     carrying one tangent per free parameter.
@@ -178,7 +178,7 @@ def residuals_and_jacobian(u, problem: Problem):
 
 
 @eqx.filter_custom_jvp
-def residuals_fwd(u, *, problem: Problem):
+def residuals_fwd(u, *, problem: FitProblem):
     """`residuals` whose JVP is the forward-mode Jacobian from
     `residuals_and_jacobian`: `jax.linearize` of it (as Gauss-Newton solvers do)
     integrates the sensitivities once and keeps $J$, so the linearised map is a

@@ -3,8 +3,10 @@
 import numpy as np
 
 from .._models import MobileModel
-from .._naming import body_names as body_names_of
-from .._naming import connection_names as connection_names_of
+from .._naming import (
+    body_names as body_names_of,
+    connection_names as connection_names_of,
+)
 from .._status import status_message
 
 

@@ -1,13 +1,23 @@
 """A trajectory as data a researcher can open: an xarray Dataset (netCDF) and a
 wide table (CSV)."""
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .._models import ImmobileModel, MobileModel
-from .._naming import body_names as _body_names, connection_names as _conn_names
-from .._naming import coordinate_names, dof_names
+from .._naming import (
+    body_names as _body_names,
+    connection_names as _conn_names,
+    coordinate_names,
+    dof_names,
+)
 from .._status import status_message
 from .._version import __version__
+
+if TYPE_CHECKING:
+    import pandas
+    import xarray
 
 # (translation, rotation) units of the per-coordinate variables.
 _UNITS = {
@@ -29,7 +39,7 @@ _ENERGIES = {
 
 def trajectory_to_xarray(
     traj, body_names=None, connection_names=None, attrs=None
-) -> "xarray.Dataset":  # noqa: F821
+) -> "xarray.Dataset":
     """The trajectory as an `xarray.Dataset`.
 
     Dimensions `time` [s], `body` (named), `coordinate` ($x, y, z$ and the
@@ -186,7 +196,7 @@ def trajectory_to_xarray(
     return ds
 
 
-def dataset_to_frame(ds) -> "pandas.DataFrame":  # noqa: F821
+def dataset_to_frame(ds) -> "pandas.DataFrame":
     """The time-dependent variables of a trajectory Dataset as one wide table: a
     column `time [s]`, then one column per variable and label, named
     `<variable>.<body or connection>.<coordinate> [unit]` (`y.beam.z [m]`)."""

@@ -6,9 +6,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._body import RigidBody, kinetic_energy
-from .._custom_types import Scalar, State
+from .._custom_types import DofMatrix, Scalar, State
 from .._rotations import AbstractRotation, get_rotation
 
 # Eigenvalues below this fraction of the largest count as zero in `rank K`.
@@ -84,23 +85,25 @@ class AbstractElasticModel(eqx.Module):
         )
 
     @abc.abstractmethod
-    def stiffness_matrix(self, y: State | None = None) -> jax.Array:
+    def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
         """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))`."""
 
-    def stiffness_rank(self, y: State | None = None) -> int:
+    def stiffness_rank(self, y: Float[ArrayLike, "bodies 6"] | None = None) -> int:
         """rank K of the stiffness at configuration `y` (eigenvalues below
         `RANK_RTOL` times the largest count as zero)."""
         if y is not None:
             y = jnp.asarray(y, dtype=jnp.float64)
         return numerical_rank(self.stiffness_matrix(y))
 
-    def n_prescribed(self, y: State | None = None) -> int:
+    def n_prescribed(self, y: Float[ArrayLike, "bodies 6"] | None = None) -> int:
         """$6m + 6 - \\operatorname{rank} K$: coordinates to prescribe to fix the
         system's static position at configuration `y`."""
         return 6 * self.n_bodies - self.stiffness_rank(y)
 
 
-def autodiff_restoring_forces(model, y: State, ydot: State) -> tuple[State, State]:
+def autodiff_restoring_forces(
+    model: AbstractElasticModel, y: State, ydot: State
+) -> tuple[State, State]:
     """$(\\partial\\Pi/\\partial Y, \\partial R/\\partial\\dot Y)$ by autodiff of
     the model's `potential` and `dissipation`."""
     elastic = jax.grad(model.potential)(y)
@@ -108,7 +111,7 @@ def autodiff_restoring_forces(model, y: State, ydot: State) -> tuple[State, Stat
     return elastic, damping
 
 
-def numerical_rank(k) -> int:
+def numerical_rank(k: Float[ArrayLike, "n n"]) -> int:
     """Rank of a symmetric matrix: eigenvalues below `RANK_RTOL` times the largest
     (in magnitude) count as zero."""
     k = np.asarray(k)

@@ -1,12 +1,11 @@
 """Appendix A: the immobile unloaded state, a constant stiffness matrix K."""
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._body import RigidBody, stack_bodies
-from .._custom_types import Scalar, State
+from .._custom_types import ArrayInput, DofMatrix, Scalar, State
 from .._rotations import get_rotation
 from .._validation import as_float_array, is_concrete, require, xp
 from .base import AbstractElasticModel, autodiff_restoring_forces, numerical_rank
@@ -51,7 +50,7 @@ def check_stiffness(K, n_bodies: int):
     return K
 
 
-def check_gravity(gravity) -> Scalar:
+def check_gravity(gravity: ArrayInput) -> Scalar:
     gravity = as_float_array(gravity, "gravity", ())
     gravity = require(gravity, gravity >= 0, "gravity must be >= 0 [m/s^2]", gravity)
     return jnp.asarray(gravity)
@@ -79,8 +78,8 @@ class ImmobileModel(AbstractElasticModel):
     """
 
     bodies: RigidBody
-    K: jnp.ndarray
-    D: jnp.ndarray
+    K: DofMatrix
+    D: DofMatrix
     y0: State
     gravity: Scalar
     convention: str = eqx.field(static=True)
@@ -109,6 +108,6 @@ class ImmobileModel(AbstractElasticModel):
     def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
         return autodiff_restoring_forces(self, y, ydot)
 
-    def stiffness_matrix(self, y: State | None = None) -> jax.Array:
+    def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
         """K (constant for this model; `y` may be omitted)."""
         return self.K

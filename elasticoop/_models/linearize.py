@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._custom_types import ArrayInput, Validated
 from .._validation import as_float_array, is_concrete
 from .immobile import ImmobileModel
 from .mobile import MobileModel
@@ -12,7 +13,7 @@ from .mobile import MobileModel
 UNLOADED_RTOL = 1e-8
 
 
-def linearize_mobile(model: MobileModel, y0) -> ImmobileModel:
+def linearize_mobile(model: Validated[MobileModel], y0: ArrayInput) -> ImmobileModel:
     """The Appendix A model that agrees with `model` to first order about `y0`.
 
     $K = \\partial^2 \\Pi/\\partial Y^2 (Y_0)$ and

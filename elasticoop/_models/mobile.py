@@ -1,12 +1,23 @@
 """Appendix B: the mobile unloaded state, pairwise springs with rest length."""
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._body import RigidBody, stack_bodies
-from .._custom_types import Pairs, Scalar, State, Vector3
+from .._custom_types import (
+    DofMatrix,
+    LinkCoordinate,
+    LinkCoordinates,
+    Scalar,
+    State,
+    Vector3,
+    Vector6,
+)
 from .._rotations import get_rotation
 from .._validation import as_float_array, is_concrete, require
 from .base import AbstractElasticModel
@@ -30,8 +41,8 @@ class Connection(eqx.Module):
 
     i: int = eqx.field(static=True)
     j: int = eqx.field(static=True)
-    stiffness: jnp.ndarray
-    damping: jnp.ndarray
+    stiffness: Vector6
+    damping: Vector6
     rest_length: Scalar
     rest_angles: Vector3
 
@@ -65,7 +76,9 @@ class Connection(eqx.Module):
         )
 
 
-def _deflection(d, rest_length) -> tuple:
+def _deflection(
+    d: Vector3 | Sequence[LinkCoordinate], rest_length: LinkCoordinate
+) -> tuple[LinkCoordinate, LinkCoordinate, LinkCoordinate]:
     """$\\delta = (1 - \\rho_0/|d|)\\, d$ component by component: `d` is an array
     `(3,)` or a sequence of three arrays (many links at once)."""
     sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
@@ -85,46 +98,62 @@ def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
     return jnp.stack(_deflection(d, rest_length))
 
 
-def connection_potential(stiffness, rest_length, rest_angles, yi, yj) -> Scalar:
+def connection_potential(
+    stiffness: Float[Array, "*connections 6"],
+    rest_length: LinkCoordinate,
+    rest_angles: Float[Array, "*connections 3"],
+    yi: Vector6 | LinkCoordinates,
+    yj: Vector6 | LinkCoordinates,
+) -> LinkCoordinate:
     """$\\Pi_{ij} = \\tfrac12\\sum_k c^k \\delta_k^2
     + \\tfrac12\\sum_a c^a (\\Delta\\mathcal{A}_a - \\Delta\\mathcal{A}_{0,a})^2$.
 
-    `yi`, `yj` are arrays `(6,)`, or sequences of six arrays (coordinate by
+    `yi`, `yj` are arrays `(6,)`, or tuples of six arrays (coordinate by
     coordinate) for many connections at once, with `stiffness` `(P, 6)`,
     `rest_length` `(P,)` and `rest_angles` `(P, 3)`."""
     c = stiffness
     delta = _deflection([yi[k] - yj[k] for k in range(3)], rest_length)
-    energy = 0.0
-    for k in range(3):
-        angle = yi[3 + k] - yj[3 + k] - rest_angles[..., k]
-        energy = energy + c[..., k] * delta[k] ** 2 + c[..., 3 + k] * angle**2
-    return 0.5 * energy
+    angle = [yi[3 + k] - yj[3 + k] - rest_angles[..., k] for k in range(3)]
+    energy = [
+        c[..., k] * delta[k] ** 2 + c[..., 3 + k] * angle[k] ** 2 for k in range(3)
+    ]
+    return 0.5 * (energy[0] + energy[1] + energy[2])
 
 
-def connection_dissipation(damping, rest_length, yi, yj, vi, vj) -> Scalar:
+def connection_dissipation(
+    damping: Float[Array, "*connections 6"],
+    rest_length: LinkCoordinate,
+    yi: Vector6 | LinkCoordinates,
+    yj: Vector6 | LinkCoordinates,
+    vi: Vector6 | LinkCoordinates,
+    vj: Vector6 | LinkCoordinates,
+) -> LinkCoordinate:
     """$R_{ij} = \\tfrac12 \\dot\\delta^T D^\\delta \\dot\\delta
     + \\tfrac12 \\Delta\\dot{\\mathcal{A}}^T D^{\\mathcal A} \\Delta\\dot{\\mathcal{A}}$
     with $\\dot\\delta = \\mathcal{G}(d)\\,\\dot d$ the deflection rate: the Jacobian
     $\\mathcal{G}$ of the deflection is applied by a forward-mode product.
 
     Arguments as for `connection_potential` (arrays `(6,)` or coordinate
-    sequences)."""
+    tuples)."""
     b = damping
     d = tuple(yi[k] - yj[k] for k in range(3))
     d_rate = tuple(vi[k] - vj[k] for k in range(3))
     _, delta_rate = jax.jvp(lambda x: _deflection(x, rest_length), (d,), (d_rate,))
-    power = 0.0
-    for k in range(3):
-        angle_rate = vi[3 + k] - vj[3 + k]
-        power = power + b[..., k] * delta_rate[k] ** 2 + b[..., 3 + k] * angle_rate**2
-    return 0.5 * power
+    angle_rate = [vi[3 + k] - vj[3 + k] for k in range(3)]
+    power = [
+        b[..., k] * delta_rate[k] ** 2 + b[..., 3 + k] * angle_rate[k] ** 2
+        for k in range(3)
+    ]
+    return 0.5 * (power[0] + power[1] + power[2])
 
 
-def _incidence(pairs, n_bodies: int):
+def _incidence(
+    pairs: Sequence[tuple[int, int]], n_bodies: int
+) -> tuple[Int[np.ndarray, "bodies width"], Float[np.ndarray, "bodies width"]]:
     """Static per-body lists of the connections at each body: `(index, sign)`
     arrays `(bodies, K)` (sign +1 where the body is the first end, -1 the second,
     0 padding), K the largest number of connections at one body."""
-    rows = [[] for _ in range(n_bodies)]
+    rows: list[list[tuple[int, float]]] = [[] for _ in range(n_bodies)]
     for k, (i, j) in enumerate(pairs):
         rows[i].append((k, 1.0))
         rows[j].append((k, -1.0))
@@ -167,11 +196,10 @@ class MobileModel(AbstractElasticModel):
     """
 
     bodies: RigidBody
-    pairs: Pairs
-    stiffness: jnp.ndarray
-    damping: jnp.ndarray
-    rest_length: jnp.ndarray
-    rest_angles: jnp.ndarray
+    stiffness: Float[Array, "connections 6"]
+    damping: Float[Array, "connections 6"]
+    rest_length: Float[Array, " connections"]
+    rest_angles: Float[Array, "connections 3"]
     gravity: Scalar
     convention: str = eqx.field(static=True)
     connectivity: tuple[tuple[int, int], ...] = eqx.field(static=True)
@@ -195,9 +223,6 @@ class MobileModel(AbstractElasticModel):
                         f"(indices 0..{n - 1})"
                     )
         self.connectivity = tuple((c.i, c.j) for c in connections)
-        self.pairs = jnp.asarray(
-            np.array(self.connectivity, dtype=np.int32).reshape(-1, 2)
-        )
 
         def stacked(field, shape):
             if not connections:
@@ -211,10 +236,18 @@ class MobileModel(AbstractElasticModel):
         self.gravity = check_gravity(gravity)
 
     @property
-    def n_connections(self) -> int:
-        return int(np.shape(self.pairs)[0])
+    def pairs(self) -> Int[np.ndarray, "connections 2"]:
+        """The connected pairs $(i, j)$, an integer array `(connections, 2)` (a
+        constant of the model's structure)."""
+        return np.array(self.connectivity, dtype=np.int32).reshape(-1, 2)
 
-    def _ends(self, y: State):
+    @property
+    def n_connections(self) -> int:
+        return len(self.connectivity)
+
+    def _ends(
+        self, y: State
+    ) -> tuple[Float[Array, "connections 6"], Float[Array, "connections 6"]]:
         return y[self.pairs[:, 0]], y[self.pairs[:, 1]]
 
     def potential(self, y: State) -> Scalar:
@@ -250,6 +283,7 @@ class MobileModel(AbstractElasticModel):
         first, second = pairs[:, 0], pairs[:, 1]
         # One gather of both ends' coordinates and rates, `(2P, 12)`.
         P = len(pairs)
+        ends: Array | np.ndarray
         ends = jnp.concatenate([y, ydot], axis=-1)[np.concatenate([first, second])]
         yi = tuple(ends[:P, k] for k in range(6))
         yj = tuple(ends[P:, k] for k in range(6))
@@ -287,7 +321,7 @@ class MobileModel(AbstractElasticModel):
             ]
         return jnp.stack(per_body[:6], axis=-1), jnp.stack(per_body[6:], axis=-1)
 
-    def stiffness_matrix(self, y: State | None = None) -> jax.Array:
+    def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
         """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))` (it
         depends on the configuration: `y` is required)."""
         if y is None:
@@ -298,7 +332,7 @@ class MobileModel(AbstractElasticModel):
         n = 6 * self.n_bodies
         return jax.hessian(lambda q: self.potential(q.reshape(y.shape)))(y.reshape(n))
 
-    def connection_wrench(self, y: State) -> jnp.ndarray:
+    def connection_wrench(self, y: State) -> Float[Array, "connections 6"]:
         """Generalized elastic force of each connection on its first body $i$,
         $-\\partial \\Pi_{ij}/\\partial Y_i$, shape `(P, 6)`: three world-axis force
         components [N] and three generalized torques [N m]. The force on body $j$ is
@@ -309,12 +343,12 @@ class MobileModel(AbstractElasticModel):
         )
         return -grad_i
 
-    def link_lengths(self, y: State) -> jnp.ndarray:
+    def link_lengths(self, y: State) -> Float[Array, " connections"]:
         """$|r_i - r_j|$ per connection, shape `(P,)`."""
         yi, yj = self._ends(y)
         return jnp.sqrt(jnp.sum((yi[:, :3] - yj[:, :3]) ** 2, axis=-1))
 
-    def with_unloaded_state(self, y: State) -> "MobileModel":
+    def with_unloaded_state(self, y: Float[ArrayLike, "bodies 6"]) -> "MobileModel":
         """The same model with rest lengths and rest angles set so that `y` is
         unloaded ($\\rho_{ij0} = |r_i - r_j|$, $\\Delta\\mathcal{A}_{ij0} =
         \\mathcal{A}_i - \\mathcal{A}_j$)."""

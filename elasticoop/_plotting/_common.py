@@ -41,7 +41,7 @@ def rotation_matrices(traj) -> np.ndarray:
     return np.asarray(jax.vmap(jax.vmap(rot.matrix))(traj.y[..., 3:]))
 
 
-def links(traj) -> list[tuple[int, int]]:
+def links(traj) -> list[tuple[int, ...]]:
     """Pairs of bodies to draw as links: the connections of a `MobileModel`, the
     bodies coupled by a non-zero block of K for an `ImmobileModel`."""
     model = traj.model

@@ -1,6 +1,8 @@
 """3-D views of the bodies: an axes triad at each body's pose, links as lines;
 still snapshots at chosen instants and an animation export."""
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
@@ -13,6 +15,9 @@ from ._common import (
     resolve_body_names,
     rotation_matrices,
 )
+
+if TYPE_CHECKING:
+    import pathlib
 
 # Camera: a little above the horizon and mostly along -y, so lifts along z and
 # layouts along x read at a glance.
@@ -114,7 +119,7 @@ def plot_snapshots(traj, times=None, body_names=None, n_snapshots: int = 4):
 
 def save_animation(
     traj, path, body_names=None, fps: int = 20, max_frames: int = 80
-) -> "pathlib.Path":  # noqa: F821
+) -> "pathlib.Path":
     """Write a 3-D animation of the bodies (as in `plot_snapshots`) to `path`.
 
     `.gif` is written with matplotlib's `PillowWriter`; `.mp4` needs ffmpeg
@@ -129,6 +134,7 @@ def save_animation(
 
     path = pathlib.Path(path)
     suffix = path.suffix.lower()
+    writer: animation.AbstractMovieWriter
     if suffix == ".gif":
         writer = animation.PillowWriter(fps=fps)
     elif suffix == ".mp4":

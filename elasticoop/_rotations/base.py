@@ -1,13 +1,26 @@
 """The interface every Euler-angle sequence implements."""
 
 import abc
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
-from .._custom_types import Matrix3, Scalar, Vector3
+from .._custom_types import (
+    BodyCoordinate,
+    BodyCoordinates,
+    Matrix3,
+    Scalar,
+    Vector3,
+)
+
+# An entry of $L_\\omega$: an array, or a structural `0.0` or `1.0`.
+_Entry = BodyCoordinate | float
+_Row = tuple[_Entry, _Entry, _Entry]
+AngularVelocityRows = tuple[_Row, _Row, _Row]
 
 
 class AbstractRotation(eqx.Module):
@@ -30,11 +43,13 @@ class AbstractRotation(eqx.Module):
         """Rotation matrix $R$ taking body-frame vectors to the world frame."""
 
     @abc.abstractmethod
-    def angular_velocity_rows(self, angles) -> tuple:
+    def angular_velocity_rows(
+        self, angles: Vector3 | BodyCoordinates
+    ) -> AngularVelocityRows:
         """The entries of $L_\\omega(\\mathcal{A})$ as three rows of three, with
         structural zeros and ones as Python floats (`0.0`, `1.0`).
 
-        `angles` may be an array `(3,)` or a sequence of three arrays of any common
+        `angles` may be an array `(3,)` or a tuple of three arrays of any common
         shape (the angles of many bodies at once, one array per angle); the entries
         then have that shape. This is the only place $L_\\omega$ is written.
         """
@@ -66,7 +81,13 @@ class AbstractRotation(eqx.Module):
             f"choose other angles or convention={other!r}"
         )
 
-    def check_regular(self, angles, tol: float, what: str, names=None) -> None:
+    def check_regular(
+        self,
+        angles: Float[ArrayLike, "bodies 3"],
+        tol: float,
+        what: str,
+        names: Sequence[str] | None = None,
+    ) -> None:
         """Raise `ValueError` if a body of the concrete angles `(bodies, 3)` lies
         within `tol` of the singularity ($|$`regularity`$| <$ `tol`). The message
         names `what` (e.g. `"y_init"`) and the body (its index, or `names[i]`)."""
@@ -88,9 +109,13 @@ class AbstractRotation(eqx.Module):
             jnp.broadcast_arrays(*self.angular_velocity_components(angles, angle_rates))
         )
 
-    def angular_velocity_components(self, angles, angle_rates) -> tuple:
+    def angular_velocity_components(
+        self,
+        angles: Vector3 | BodyCoordinates,
+        angle_rates: Vector3 | BodyCoordinates,
+    ) -> BodyCoordinates:
         """$(\\omega_1, \\omega_2, \\omega_3)$ as a tuple, with `angles` and
-        `angle_rates` arrays `(3,)` or sequences of three arrays (many bodies at
+        `angle_rates` arrays `(3,)` or tuples of three arrays (many bodies at
         once).
 
         Written out entry by entry (structural zeros skipped) instead of as a

@@ -2,9 +2,9 @@
 
 import jax.numpy as jnp
 
-from .._custom_types import Matrix3, Scalar, Vector3
+from .._custom_types import BodyCoordinates, Matrix3, Scalar, Vector3
 from .._naming import ANGLE_NAMES
-from .base import AbstractRotation, rot_x, rot_y, rot_z
+from .base import AbstractRotation, AngularVelocityRows, rot_x, rot_y, rot_z
 
 
 class RPY(AbstractRotation):
@@ -28,7 +28,9 @@ class RPY(AbstractRotation):
         roll, pitch, yaw = angles
         return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
 
-    def angular_velocity_rows(self, angles) -> tuple:
+    def angular_velocity_rows(
+        self, angles: Vector3 | BodyCoordinates
+    ) -> AngularVelocityRows:
         roll, pitch = angles[0], angles[1]
         sr, cr = jnp.sin(roll), jnp.cos(roll)
         sp, cp = jnp.sin(pitch), jnp.cos(pitch)

@@ -2,9 +2,9 @@
 
 import jax.numpy as jnp
 
-from .._custom_types import Matrix3, Scalar, Vector3
+from .._custom_types import BodyCoordinates, Matrix3, Scalar, Vector3
 from .._naming import ANGLE_NAMES
-from .base import AbstractRotation, rot_x, rot_z
+from .base import AbstractRotation, AngularVelocityRows, rot_x, rot_z
 
 
 class ZXZ(AbstractRotation):
@@ -16,7 +16,8 @@ class ZXZ(AbstractRotation):
         \\cos\\theta & 0 & 1 \\end{bmatrix}$$
 
     Singular (gimbal lock) at $\\theta = 0, \\pi$: $\\det L_\\omega = -\\sin\\theta$.
-    The identity orientation is singular; $\\theta = \\pi/2$ is a regular choice.
+    The identity orientation is singular; $\\theta = \\pi/2$ is a regular choice
+    (`docs/model.md`, section 1.5 and correction 5).
     """
 
     name = "zxz"
@@ -28,7 +29,9 @@ class ZXZ(AbstractRotation):
         psi, theta, phi = angles
         return rot_z(psi) @ rot_x(theta) @ rot_z(phi)
 
-    def angular_velocity_rows(self, angles) -> tuple:
+    def angular_velocity_rows(
+        self, angles: Vector3 | BodyCoordinates
+    ) -> AngularVelocityRows:
         theta, phi = angles[1], angles[2]
         st, ct = jnp.sin(theta), jnp.cos(theta)
         sp, cp = jnp.sin(phi), jnp.cos(phi)
