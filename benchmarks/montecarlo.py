@@ -42,6 +42,7 @@ import elasticoop as eo  # noqa: E402
 from elasticoop import montecarlo as mc  # noqa: E402
 from elasticoop.montecarlo.execution import (  # noqa: E402
     _global_array,
+    _replicated,
     _run_batch,
     working_memory_per_sample,
 )
@@ -95,7 +96,9 @@ def _memory_per_sample(study, batch_width, devices):
     shape = (len(devices), batch_width)
     index = _global_array(mesh, np.zeros(shape, np.int64))
     strata = _global_array(mesh, np.zeros((*shape, 0), np.int32))
-    stats = _run_batch.lower(study, mesh, index, strata).compile().memory_analysis()
+    # the batch exactly as `run_study` compiles it (the study replicated on the mesh)
+    lowered = _run_batch.lower(_replicated(mesh, study), mesh, index, strata)
+    stats = lowered.compile().compiled.memory_analysis()
     if stats is None:
         return None
     total = (

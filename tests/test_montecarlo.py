@@ -13,6 +13,7 @@ from helpers import three_body_model, three_body_state
 
 import elasticoop as eo
 from elasticoop import montecarlo as mc
+from elasticoop.montecarlo import execution
 
 # A batch and a single run differ only by floating-point rounding in the vmapped
 # solver (different vectorisation of the same operations).
@@ -58,14 +59,14 @@ def _outputs():
     }
 
 
-def _study(parameters=None, n_samples=N_SAMPLES, key=7, **kwargs):
+def _study(parameters=None, n_samples=N_SAMPLES, key=7, forces=None, **kwargs):
     y0 = three_body_state()
     return mc.Study(
         three_body_model(),
         y0,
         np.zeros_like(y0),
         TS,
-        forces=_lift(),
+        forces=_lift() if forces is None else forces,
         parameters=_parameters() if parameters is None else parameters,
         outputs=_outputs(),
         n_samples=n_samples,
@@ -148,6 +149,53 @@ def test_exceedance_probability_with_wilson_interval(results, single_runs):
 def test_chunk_size_does_not_change_results(study, results):
     other = mc.run_study(study, chunk_size=12, batch_width=BATCH_WIDTH, progress=False)
     xr.testing.assert_identical(results.drop_attrs(), other.drop_attrs())
+
+
+def test_studies_differing_in_values_share_one_compilation(study, results):
+    """A Study is a pytree: its arrays (model, state, forces, times, key) are traced
+    and its structure static, so a study that differs from another only in values
+    (a stiffer model, another key, other forces) reuses its compiled batch."""
+    model = study.inputs.model
+    stiffer = eqx.tree_at(lambda m: m.stiffness, model, 1.5 * model.stiffness)
+    other = mc.Study(
+        stiffer,
+        study.inputs.y_init,
+        study.inputs.ydot_init,
+        study.ts,
+        forces=1.2 * _lift(),
+        parameters=study.parameters,
+        outputs=study.outputs,
+        n_samples=N_SAMPLES,
+        key=8,
+    )
+    traces = eqx.debug.get_num_traces(execution._run_batch)
+    assert traces >= 1  # the `results` fixture compiled this structure
+    ds = mc.run_study(other, chunk_size=8, batch_width=BATCH_WIDTH, progress=False)
+    assert eqx.debug.get_num_traces(execution._run_batch) == traces
+    # ... and really simulated the new values
+    values = mc.sample_parameters(other)
+    for name in ("stiffness", "mass", "load"):
+        np.testing.assert_array_equal(ds[name].values, values[name])
+    assert not np.array_equal(ds["stiffness"].values, results["stiffness"].values)
+    assert not np.any(ds["peak_force"].values == results["peak_force"].values)
+    assert mc.summary(ds)["n_succeeded"] == N_SAMPLES
+
+
+def test_axes_are_labelled_in_the_export_vocabulary(study, results):
+    """`coordinate`, `connection` and `time` are labelled as in
+    `trajectory_to_xarray` (the model's convention: ZXZ angles here)."""
+    assert study.inputs.model.convention == "zxz"
+    assert list(results["coordinate"].values) == [
+        "x",
+        "y",
+        "z",
+        "psi",
+        "theta",
+        "phi",
+    ]
+    assert list(results["connection"].values) == ["object-contact1", "object-contact2"]
+    np.testing.assert_array_equal(results["time"].values, TS)
+    assert study.describe()["solver"] == "tsit5"
 
 
 def test_sampling_is_reproducible_and_per_sample(study):
@@ -385,6 +433,38 @@ BAD = {
     ),
     "n_samples": (lambda: _study(n_samples=0), "n_samples must be >= 1"),
     "sampling": (lambda: _study(sampling="sobol"), "sampling must be one of"),
+    "rtol": (lambda: _study(rtol=-1.0), "Study.rtol must be a positive number"),
+    "solver": (lambda: _study(solver="euler"), "Study.solver must be one of"),
+    "max_steps": (lambda: _study(max_steps=0), "Study.max_steps must be a positive"),
+    "ts": (
+        lambda: mc.Study(
+            three_body_model(),
+            three_body_state(),
+            np.zeros((3, 6)),
+            [0.0, 0.2, 0.1],
+            parameters=_parameters()[:1],
+            outputs=_outputs(),
+            n_samples=2,
+        ),
+        r"Study.ts must be strictly increasing, but Study.ts\[1\]",
+    ),
+    "forces cover ts": (
+        lambda: _study(forces=eo.SampledForce([0.0, 0.1], np.zeros((2, 2, 6)))),
+        r"Study.ts spans \[0.0, 0.3\] s but the Study.forces",
+    ),
+    "output axis": (
+        lambda: mc.Study(
+            three_body_model(),
+            three_body_state(),
+            np.zeros((3, 6)),
+            TS,
+            parameters=_parameters()[:1],
+            outputs={"r": mc.Output(lambda traj: traj.y[-1, 0, :3], ("coordinate",))},
+            n_samples=2,
+        ),
+        "axis 0 is named 'coordinate', which has 6 entries in this study, but has "
+        "length 3",
+    ),
 }
 
 

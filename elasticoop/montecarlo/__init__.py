@@ -2,6 +2,7 @@
 
 from .distributions import (
     AbstractDistribution as AbstractDistribution,
+    AbstractInverseCDFDistribution as AbstractInverseCDFDistribution,
     Custom as Custom,
     LogNormal as LogNormal,
     Normal as Normal,

@@ -29,30 +29,44 @@ def _check(ok, message: str, value) -> None:
 
 
 class AbstractDistribution(eqx.Module):
-    """The law of one uncertain model leaf."""
+    """The law of one uncertain model leaf.
+
+    Subclasses implement `sample`, `ppf`, `supports_ppf` and `describe`. The
+    built-in laws derive from `AbstractInverseCDFDistribution`, which samples through
+    the inverse CDF; `Custom` wraps a user's sampler."""
+
+    @abc.abstractmethod
+    def sample(self, key, shape) -> jax.Array:
+        """Draw one value of the given shape from `key`."""
+
+    @abc.abstractmethod
+    def ppf(self, u) -> jax.Array:
+        """Inverse CDF at $u \\in (0, 1)$ (needed for Latin hypercube sampling)."""
+
+    @property
+    @abc.abstractmethod
+    def supports_ppf(self) -> bool:
+        """Whether `ppf` is available (and so Latin hypercube sampling)."""
 
     @abc.abstractmethod
     def describe(self) -> dict:
         """A JSON-able description (recorded in the study's manifest)."""
 
+
+class AbstractInverseCDFDistribution(AbstractDistribution):
+    """A law given by its inverse CDF: `sample` draws $u \\sim U(0, 1)$ and returns
+    `ppf(u)`, so random and Latin hypercube sampling share one code path."""
+
     def sample(self, key, shape) -> jax.Array:
-        """Draw one value of the given shape from `key`."""
         tiny = jnp.finfo(jnp.float64).tiny
         return self.ppf(jax.random.uniform(key, shape, minval=tiny, maxval=1.0))
 
-    def ppf(self, u) -> jax.Array:
-        """Inverse CDF at $u \\in (0, 1)$ (needed for Latin hypercube sampling)."""
-        raise ValueError(
-            f"{type(self).__name__} has no inverse CDF, so it cannot be used with "
-            f"Latin hypercube sampling; use sampling='random'"
-        )
-
     @property
     def supports_ppf(self) -> bool:
-        return type(self).ppf is not AbstractDistribution.ppf
+        return True
 
 
-class Uniform(AbstractDistribution):
+class Uniform(AbstractInverseCDFDistribution):
     """Uniform on $[\\text{low}, \\text{high}]$: $x = \\text{low} +
     u\\,(\\text{high} - \\text{low})$."""
 
@@ -71,7 +85,7 @@ class Uniform(AbstractDistribution):
         return _describe(self, low=self.low, high=self.high)
 
 
-class Normal(AbstractDistribution):
+class Normal(AbstractInverseCDFDistribution):
     """Normal $\\mathcal N(\\mu, \\sigma^2)$: $x = \\mu + \\sigma\\,\\Phi^{-1}(u)$
     ($\\sigma = 0$ keeps an entry fixed at $\\mu$)."""
 
@@ -90,7 +104,7 @@ class Normal(AbstractDistribution):
         return _describe(self, mean=self.mean, std=self.std)
 
 
-class LogNormal(AbstractDistribution):
+class LogNormal(AbstractInverseCDFDistribution):
     """Log-normal: $\\log x \\sim \\mathcal N(\\mu, \\sigma^2)$, so
     $x = e^{\\mu + \\sigma\\Phi^{-1}(u)}$ (the median is $e^\\mu$). With
     `relative=True` on the parameter, `LogNormal(0.0, 0.1)` is a multiplicative
@@ -111,7 +125,7 @@ class LogNormal(AbstractDistribution):
         return _describe(self, log_mean=self.log_mean, log_std=self.log_std)
 
 
-class TruncatedNormal(AbstractDistribution):
+class TruncatedNormal(AbstractInverseCDFDistribution):
     """$\\mathcal N(\\mu, \\sigma^2)$ conditioned on $[\\text{low}, \\text{high}]$:
     $x = \\mu + \\sigma\\,\\Phi^{-1}\\big(\\Phi(a) + u\\,(\\Phi(b) - \\Phi(a))\\big)$,
     $a = (\\text{low} - \\mu)/\\sigma$, $b = (\\text{high} - \\mu)/\\sigma$ (use
@@ -171,7 +185,11 @@ class Custom(AbstractDistribution):
 
     def ppf(self, u):
         if self.inverse_cdf is None:
-            return AbstractDistribution.ppf(self, u)
+            raise ValueError(
+                "Custom distribution without ppf has no inverse CDF, so it cannot be "
+                "used with Latin hypercube sampling; use sampling='random' or pass "
+                "Custom(fn, ppf=...)"
+            )
         return jnp.asarray(self.inverse_cdf(u), jnp.float64)
 
     @property

@@ -5,10 +5,10 @@ unit of storage and of resumption. A chunk runs as batches of
 `batch_width x devices` samples: each batch is one array of sample numbers, sharded
 over every device of every process (a one-axis `Mesh`, partitioned by `jit`), and
 each device integrates its `batch_width` samples at once (`jax.vmap`). One compiled
-function serves every chunk size. A
-sample's result depends only on the study, its number and `batch_width`: not on the
-chunk size, its position in the chunk, its neighbours, the number of devices or of
-processes (bit for bit).
+function serves every chunk size, and every study of the same structure (the
+study's arrays are traced, see `Study`). A sample's result depends only on the
+study, its number and `batch_width`: not on the chunk size, its position in the
+chunk, its neighbours, the number of devices or of processes (bit for bit).
 """
 
 import math
@@ -16,20 +16,27 @@ from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
+import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from tqdm import tqdm
 
-from .._trajectory import Status
-from . import distributed, store as _store
-from .sampling import draw, lhs_strata
-from .study import Study
-
-# Status of a sample whose drawn parameters are not finite (it is not simulated).
-INVALID_SAMPLE = -1
+from .._status import Status
+from .distributed import barrier, broadcast_from_first, gather, is_first_process
+from .sampling import lhs_strata
+from .store import (
+    FORMAT,
+    completed_chunks,
+    concatenate,
+    open_study,
+    prepare,
+    read_manifest,
+    to_dataset,
+    write_chunk,
+)
+from .study import INVALID_SAMPLE, Study, one_sample
 
 DEFAULT_BATCH_WIDTH = 32
 DEFAULT_MEMORY_BUDGET = 2**30  # bytes
@@ -44,66 +51,27 @@ _WORK_FIXED = 64 * 1024
 _MAX_BATCHES_PER_CHUNK = 64
 
 
-def _one_sample(study: Study, index, strata_row) -> dict:
-    raw = draw(study, study.parameters, study.key_data, index, strata_row)
-    finite = jnp.array(True)
-    for value in raw.values():
-        finite = finite & jnp.all(jnp.isfinite(value))
-    inputs, values = study.inputs, {}
-    for p in study.parameters:
-        fallback = 1.0 if p.relative else p.nominal(study.inputs)
-        inputs = p.apply(inputs, jnp.where(finite, raw[p.name], fallback))
-        values[p.name] = jnp.where(finite, p.nominal(inputs), raw[p.name])
-    traj = study.simulate(inputs)
-    outputs = {
-        name: jnp.where(finite, out(traj), jnp.nan)
-        for name, out in study.outputs.items()
-    }
-    return {
-        "sample": jnp.asarray(index, jnp.int64),
-        "status": jnp.where(finite, traj.status, INVALID_SAMPLE).astype(jnp.int32),
-        "event_time": jnp.where(finite, traj.event_time, jnp.nan),
-        **values,
-        **outputs,
-    }
-
-
-@partial(jax.jit, static_argnums=(0, 1))
+@eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def _run_batch(study: Study, mesh: Mesh, index, strata):
-    # `index` has shape (devices, batch_width), axis 0 sharded over the mesh (GSPMD):
-    # each device integrates its `batch_width` samples at once (vmap).
+    # The study's arrays are traced and its structure static, so one compilation
+    # serves every study of the same structure. `index` has shape
+    # (devices, batch_width), axis 0 sharded over the mesh (GSPMD): each device
+    # integrates its `batch_width` samples at once (vmap).
     sharded = NamedSharding(mesh, P("samples"))
     index = jax.lax.with_sharding_constraint(index, sharded)
     strata = jax.lax.with_sharding_constraint(strata, sharded)
-    return jax.vmap(jax.vmap(partial(_one_sample, study)))(index, strata)
+    return jax.vmap(jax.vmap(partial(one_sample, study)))(index, strata)
 
 
 def _template(study: Study) -> dict:
-    """Shapes and dtypes of one sample's record (traced once per study)."""
-    if not hasattr(study, "_record_template"):
-        strata = jnp.zeros((study.n_dims if study.sampling == "lhs" else 0,), jnp.int32)
-        template = jax.eval_shape(partial(_one_sample, study), jnp.int64(0), strata)
-        for name, out in study.outputs.items():
-            shape = template[name].shape
-            if out.dims is not None and len(out.dims) != len(shape):
-                raise ValueError(
-                    f"Study.outputs[{name!r}] has dims {out.dims} but returns shape "
-                    f"{shape}"
-                )
-            if out.dims is not None and "time" in out.dims:
-                k = out.dims.index("time")
-                if shape[k] != len(study.ts):
-                    raise ValueError(
-                        f"Study.outputs[{name!r}]: axis 'time' has length {shape[k]}, "
-                        f"but the study has {len(study.ts)} output times"
-                    )
-        study._record_template = template
-    return study._record_template
+    """Shapes and dtypes of one sample's record (computed when the study is made)."""
+    return study._record_template()
 
 
 def _variables(study: Study) -> dict:
     template = _template(study)
-    dims = {"status": (), "event_time": ()}
+    dims: dict[str, tuple[str, ...]] = {"status": (), "event_time": ()}
     for p in study.parameters:
         dims[p.name] = p.leaf_dims(len(study.leaf_shapes[p.name]))
     for name, out in study.outputs.items():
@@ -113,6 +81,11 @@ def _variables(study: Study) -> dict:
         name: {"dims": list(d), "shape": list(template[name].shape)}
         for name, d in dims.items()
     }
+
+
+def _labels(study: Study) -> dict:
+    """Labels of the named axes other than `time` (which the study's `ts` label)."""
+    return {k: v for k, v in study._labels().items() if k != "time"}
 
 
 def working_memory_per_sample(study: Study) -> int:
@@ -150,21 +123,32 @@ def chunk_size_for(
 
 def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
     return {
-        "format": _store.FORMAT,
+        "format": FORMAT,
         "study": study.describe(),
         "fingerprint": study.fingerprint(),
         "chunk_size": chunk_size,
         "batch_width": batch_width,
         "n_chunks": math.ceil(study.n_samples / chunk_size),
         "variables": _variables(study),
+        "coords": _labels(study),
         "status_codes": {s.name: int(s) for s in Status}
         | {"INVALID_SAMPLE": INVALID_SAMPLE},
     }
 
 
-def _global_array(mesh: Mesh, host: np.ndarray) -> jax.Array:
-    sharding = NamedSharding(mesh, P("samples"))
+def _global_array(mesh: Mesh, host: np.ndarray, spec=P("samples")) -> jax.Array:
+    sharding = NamedSharding(mesh, spec)
     return jax.make_array_from_callback(host.shape, sharding, lambda i: host[i])
+
+
+def _replicated(mesh: Mesh, study: Study) -> Study:
+    """`study` with every array replicated over the mesh (one global array each, so
+    that a study spread over processes passes them like the sample numbers)."""
+
+    def put(x):
+        return _global_array(mesh, np.asarray(x), P()) if eqx.is_array(x) else x
+
+    return jax.tree.map(put, study)
 
 
 def run_study(
@@ -212,7 +196,7 @@ def run_study(
     mesh = Mesh(np.array(devices), ("samples",))
     lanes = batch_width * len(devices)
 
-    existing = None if store is None else _store.read_manifest(store)
+    existing = None if store is None else read_manifest(store)
     if existing is not None:
         if chunk_size is not None and chunk_size != existing["chunk_size"]:
             raise ValueError(
@@ -233,17 +217,18 @@ def run_study(
 
     done = np.zeros(n_chunks, dtype=bool)
     if store is not None:
-        if distributed.is_first_process():
-            _store.prepare(store, manifest)
-            done[[c for c in _store.completed_chunks(store) if c < n_chunks]] = True
-        done = distributed.broadcast_from_first(done)
-        distributed.barrier("elasticoop-montecarlo-prepared")
+        if is_first_process():
+            prepare(store, manifest)
+            done[[c for c in completed_chunks(store) if c < n_chunks]] = True
+        done = broadcast_from_first(done)
+        barrier("elasticoop-montecarlo-prepared")
 
     strata = lhs_strata(study)
+    traced = _replicated(mesh, study)
     in_memory = []
     n_done = int(
         sum(
-            min(chunk_size, study.n_samples - c * chunk_size)
+            min(chunk_size, study.n_samples - int(c) * chunk_size)
             for c in np.flatnonzero(done)
         )
     )
@@ -252,7 +237,7 @@ def run_study(
         initial=n_done,
         unit="sample",
         desc="Monte Carlo",
-        disable=not (progress and distributed.is_first_process()),
+        disable=not (progress and is_first_process()),
     )
     failed = 0
     with bar:
@@ -265,7 +250,7 @@ def run_study(
             index = np.minimum(np.arange(start, start + padded), stop - 1)
             launches = [
                 _run_batch(
-                    study,
+                    traced,
                     mesh,
                     _global_array(mesh, part.reshape(len(devices), batch_width)),
                     _global_array(
@@ -274,7 +259,7 @@ def run_study(
                 )
                 for part in index.reshape(-1, lanes)
             ]
-            record = distributed.gather(launches)
+            record = gather(launches)
             record = {
                 k: np.concatenate([r[k].reshape(-1, *r[k].shape[2:]) for r in record])[
                     : stop - start
@@ -283,14 +268,14 @@ def run_study(
             }
             if store is None:
                 in_memory.append(record)
-            elif distributed.is_first_process():
-                _store.write_chunk(store, chunk, record)
+            elif is_first_process():
+                write_chunk(store, chunk, record)
             failed += int(np.sum(record["status"] != Status.SUCCESS))
             bar.update(stop - start)
             bar.set_postfix(failed=failed)
             if on_chunk is not None:
                 on_chunk(chunk)
     if store is None:
-        return _store.to_dataset(_store.concatenate(in_memory), manifest)
-    distributed.barrier("elasticoop-montecarlo-finished")
-    return _store.open_study(store)
+        return to_dataset(concatenate(in_memory), manifest)
+    barrier("elasticoop-montecarlo-finished")
+    return open_study(store)

@@ -6,7 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._forces import AbstractForce
+from .._forces import AbstractForce, ConstantForce, SampledForce
 from .._models import AbstractElasticModel
 from .distributions import AbstractDistribution
 
@@ -31,7 +31,8 @@ class Parameter(eqx.Module):
     - `name`: the variable's name in the results (e.g. `"stiffness"`).
     - `where`: selects the leaf, `equinox.tree_at`-style, from the `target`: e.g.
       `lambda m: m.stiffness`, `lambda m: m.bodies.mass`, `lambda f: f.F` for a
-      `ConstantForce` (the default for `target="forces"`). `None` for
+      `ConstantForce` or the samples of a `SampledForce` (the default for
+      `target="forces"`). `None` for
       `target="y_init"`/`"ydot_init"` (the whole state array).
     - `distribution`: an `AbstractDistribution`; its parameters broadcast to the
       leaf's shape.
@@ -116,9 +117,12 @@ class Parameter(eqx.Module):
 
 
 def _constant_force_array(force):
-    if force is None or not hasattr(force, "F"):
-        raise ValueError(
-            "a Parameter with target='forces' and where=None needs constant forces "
-            "(an (m, 6) array or ConstantForce); pass where= for other force types"
-        )
-    return force.F
+    """The force array `F` of a `ConstantForce` (or the samples of a
+    `SampledForce`): the leaf a `target="forces"` parameter selects by default."""
+    if isinstance(force, ConstantForce | SampledForce):
+        return force.F
+    raise ValueError(
+        "a Parameter with target='forces' and where=None needs constant forces "
+        "(an (m, 6) array or ConstantForce) or a SampledForce; pass where= for "
+        "other force types"
+    )

@@ -10,12 +10,14 @@ $u_{s,d} = (\\pi_d(s) + v_{s,d})/N$ with $v_{s,d}$ uniform from the sample's own
 Every stratum $[k/N, (k+1)/N)$ of every scalar parameter is then hit exactly once.
 """
 
+from functools import partial
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .study import Study
+# The functions take a `Study` (not imported here: `study` builds on this module).
 
 
 def _keys(key_data):
@@ -24,31 +26,31 @@ def _keys(key_data):
     return sample_key, design_key
 
 
-def lhs_strata(study: Study) -> np.ndarray:
+@partial(jax.jit, static_argnums=(1, 2))
+def _design(key_data, n: int, d: int):
+    _, design_key = _keys(key_data)
+    keys = jax.vmap(lambda k: jax.random.fold_in(design_key, k))(jnp.arange(d))
+    return jax.vmap(lambda k: jax.random.permutation(k, n))(keys).T
+
+
+def lhs_strata(study) -> np.ndarray:
     """The Latin hypercube design: $\\pi_d(s)$ as an `int32` array of shape
     `(n_samples, n_dims)` (memory $4 N D$ bytes; empty for random sampling)."""
     n, d = study.n_samples, study.n_dims
     if study.sampling != "lhs" or d == 0:
         return np.zeros((n, 0), np.int32)
-    _, design_key = _keys(study.key_data)
-
-    @jax.jit
-    def design(design_key):
-        keys = jax.vmap(lambda k: jax.random.fold_in(design_key, k))(jnp.arange(d))
-        return jax.vmap(lambda k: jax.random.permutation(k, n))(keys).T
-
-    return np.asarray(design(design_key), dtype=np.int32)
+    return np.asarray(_design(study.key_data, n, d), dtype=np.int32)
 
 
-def draw(study: Study, parameters, key_data, index, strata_row) -> dict:
+def draw(study, index, strata_row) -> dict:
     """The raw draws (before the `relative` scaling) of every parameter for sample
-    `index`; `parameters` are the study's (passed separately so that their arrays
-    can be traced). `strata_row` is the sample's row of `lhs_strata`."""
-    sample_key, _ = _keys(key_data)
+    `index`. `strata_row` is the sample's row of `lhs_strata`. `study` may be traced
+    (its key and distributions' arrays are leaves; shapes and sampling are static)."""
+    sample_key, _ = _keys(study.key_data)
     key = jax.random.fold_in(sample_key, index)
     values, offset = {}, 0
     tiny = jnp.finfo(jnp.float64).tiny
-    for p_index, p in enumerate(parameters):
+    for p_index, p in enumerate(study.parameters):
         shape = study.leaf_shapes[p.name]
         size = int(np.prod(shape, dtype=int))
         p_key = jax.random.fold_in(key, p_index)
@@ -63,7 +65,24 @@ def draw(study: Study, parameters, key_data, index, strata_row) -> dict:
     return values
 
 
-def sample_parameters(study: Study, indices=None) -> dict[str, np.ndarray]:
+def _scaled(p, inputs, raw):
+    """A parameter's leaf value from its raw draw (times the nominal value when
+    `relative`)."""
+    if p.relative:
+        return p.nominal(inputs) * raw
+    return raw
+
+
+@eqx.filter_jit
+def _parameter_values(study, index, strata):
+    def one(index, strata_row):
+        raw = draw(study, index, strata_row)
+        return {p.name: _scaled(p, study.inputs, raw[p.name]) for p in study.parameters}
+
+    return jax.vmap(one)(index, strata)
+
+
+def sample_parameters(study, indices=None) -> dict[str, np.ndarray]:
     """The parameter values (leaf values, after the `relative` scaling) of the
     samples `indices` (default: all), each of shape `(len(indices), *leaf_shape)`.
 
@@ -77,18 +96,4 @@ def sample_parameters(study: Study, indices=None) -> dict[str, np.ndarray]:
             f"indices must be a 1-d array of sample numbers in [0, {study.n_samples})"
         )
     strata = lhs_strata(study)[indices]
-
-    @eqx.filter_jit
-    def values(parameters, key_data, index, row):
-        raw = jax.vmap(lambda s, r: draw(study, parameters, key_data, s, r))(index, row)
-        return {p.name: _scaled(p, study, raw[p.name]) for p in parameters}
-
-    return jax.tree.map(
-        np.asarray, values(study.parameters, study.key_data, indices, strata)
-    )
-
-
-def _scaled(p, study, raw):
-    if p.relative:
-        return p.nominal(study.inputs) * raw
-    return raw
+    return jax.tree.map(np.asarray, _parameter_values(study, indices, strata))

@@ -12,8 +12,6 @@ to $\\operatorname{Var}(y)$ (first-order variance decomposition); `variance_rank
 sorts the parameters by $V_j / \\sum_k V_k$.
 """
 
-from functools import partial
-
 import diffrax
 import equinox as eqx
 import jax
@@ -21,10 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
-from .._trajectory import Status
+from .._status import Status
 from .execution import _variables
-from .outputs import COORDINATES
 from .sampling import sample_parameters
+from .store import axis_labels
 from .study import Study
 
 
@@ -36,7 +34,7 @@ def _outputs_at(study: Study, values: dict) -> tuple[dict, jax.Array]:
     return {name: out(traj) for name, out in study.outputs.items()}, traj.status
 
 
-@partial(jax.jit, static_argnums=0)
+@eqx.filter_jit
 def _jacobians(study: Study, values: dict):
     def one(theta):
         jac = jax.jacfwd(lambda t: _outputs_at(study, t)[0])(theta)
@@ -93,12 +91,8 @@ def local_sensitivities(study: Study, indices=None, batch_width: int = 8) -> xr.
                 ("sample", *dims[out_name], *p_dims),
                 jac[out_name][p_name],
             )
-    coords = {"sample": indices}
-    if any("time" in d for d in dims.values()):
-        coords["time"] = study.ts
-    if any("coordinate" in d for d in dims.values()):
-        coords["coordinate"] = list(COORDINATES)
-    return xr.Dataset(data, coords=coords)
+    coords = axis_labels(dims.values(), study.ts, study._labels())
+    return xr.Dataset(data, coords={"sample": indices} | coords)
 
 
 def variance_ranking(sensitivities: xr.Dataset, output: str, **select) -> xr.DataArray:
@@ -125,22 +119,27 @@ def variance_ranking(sensitivities: xr.Dataset, output: str, **select) -> xr.Dat
             f"{y.dims[1]}=0)"
         )
     prefix = f"d_{output}_d_"
-    names = [k[len(prefix) :] for k in sensitivities.data_vars if k.startswith(prefix)]
+    names = [
+        str(k)[len(prefix) :]
+        for k in sensitivities.data_vars
+        if str(k).startswith(prefix)
+    ]
     jacs = {p: sensitivities[prefix + p].isel(select) for p in names}
     ok = (sensitivities["status"] == Status.SUCCESS).values & np.isfinite(y.values)
     for j in jacs.values():
         ok &= np.all(np.isfinite(j.values.reshape(j.shape[0], -1)), axis=1)
     if ok.sum() < 2:
         raise ValueError("fewer than 2 valid samples: cannot estimate variances")
-    labels, contributions = [], []
+    labels: list[str] = []
+    values: list[float] = []
     for p, j in jacs.items():
         theta = sensitivities[p].values[ok]
         var_theta = theta.var(axis=0, ddof=1)
         v = np.mean(j.values[ok] ** 2, axis=0) * var_theta
         for idx in np.ndindex(v.shape):
             labels.append(f"{p}[{', '.join(map(str, idx))}]" if idx else p)
-            contributions.append(v[idx])
-    contributions = np.asarray(contributions)
+            values.append(v[idx])
+    contributions = np.asarray(values)
     total = contributions.sum()
     order = np.argsort(-contributions, kind="stable")
     share = contributions / total if total > 0 else contributions

@@ -9,8 +9,8 @@ from statistics import NormalDist
 import numpy as np
 import xarray as xr
 
-from .._trajectory import Status
-from .execution import INVALID_SAMPLE
+from .._status import Status
+from .study import INVALID_SAMPLE
 
 
 def _status_name(code: int) -> str:
@@ -30,8 +30,10 @@ def _variable(ds: xr.Dataset, name: str) -> xr.DataArray:
 def valid_samples(ds: xr.Dataset, name: str) -> xr.DataArray:
     """Boolean mask over `sample`: succeeded and `name` finite everywhere."""
     x = _variable(ds, name)
-    other = [d for d in x.dims if d != "sample"]
-    finite = np.isfinite(x).all(other) if other else np.isfinite(x)
+    other = [str(d) for d in x.dims if d != "sample"]
+    finite = x.copy(data=np.isfinite(x.values))
+    if other:
+        finite = finite.all(other)
     return (ds["status"] == Status.SUCCESS) & finite
 
 

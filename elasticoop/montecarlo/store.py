@@ -5,6 +5,9 @@
       chunk-000000.npz     samples [0, chunk_size)
       chunk-000001.npz     samples [chunk_size, 2 chunk_size) ...
 
+The manifest also holds the labels of the named axes (`coords`: the model's body,
+coordinate and connection names, as in the trajectory export).
+
 Each chunk is written to a hidden temporary name, flushed to disk (`fsync`) and then
 renamed to its final name (`os.replace`, atomic on POSIX file systems). A chunk is
 complete exactly when its final name exists, so a process killed mid-write leaves at
@@ -17,11 +20,10 @@ import json
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import xarray as xr
-
-from .outputs import COORDINATES
 
 FORMAT = "elasticoop-montecarlo-npz/1"
 MANIFEST = "manifest.json"
@@ -29,7 +31,7 @@ _CHUNK = re.compile(r"^chunk-(\d{6})\.npz$")
 _TEMPORARY = re.compile(r"^\.chunk-\d{6}\.npz\..*\.tmp$")
 
 
-def chunk_path(path: Path, chunk: int) -> Path:
+def chunk_path(path: str | Path, chunk: int) -> Path:
     return Path(path) / f"chunk-{chunk:06d}.npz"
 
 
@@ -47,12 +49,12 @@ def _write_atomic(final: Path, write) -> None:
         os.close(dir_fd)
 
 
-def write_chunk(path, chunk: int, arrays: dict) -> None:
+def write_chunk(path: str | Path, chunk: int, arrays: dict) -> None:
     """Write one chunk atomically (temporary file, fsync, rename)."""
     _write_atomic(chunk_path(path, chunk), lambda f: np.savez(f, **arrays))
 
 
-def read_manifest(path) -> dict | None:
+def read_manifest(path: str | Path) -> dict | None:
     file = Path(path) / MANIFEST
     if not file.exists():
         return None
@@ -67,7 +69,7 @@ def read_manifest(path) -> dict | None:
     return manifest
 
 
-def prepare(path, manifest: dict) -> None:
+def prepare(path: str | Path, manifest: dict) -> None:
     """Create the store, or check that an existing one holds the same study and
     remove temporary files left by a killed run."""
     path = Path(path)
@@ -102,7 +104,7 @@ def _short(value):
     return text if len(text) < 20 else text[:12] + "..."
 
 
-def completed_chunks(path) -> list[int]:
+def completed_chunks(path: str | Path) -> list[int]:
     """The chunk numbers whose files are complete (renamed to their final name)."""
     path = Path(path)
     if not path.exists():
@@ -112,7 +114,7 @@ def completed_chunks(path) -> list[int]:
     )
 
 
-def read_chunk(path, chunk: int, manifest: dict) -> dict:
+def read_chunk(path: str | Path, chunk: int, manifest: dict) -> dict:
     file = chunk_path(path, chunk)
     try:
         with np.load(file) as data:
@@ -121,7 +123,7 @@ def read_chunk(path, chunk: int, manifest: dict) -> dict:
         raise ValueError(f"chunk file {file} cannot be read: {err}") from None
     size, n = manifest["chunk_size"], manifest["study"]["n_samples"]
     expected = np.arange(chunk * size, min((chunk + 1) * size, n))
-    if not np.array_equal(arrays.get("sample"), expected):
+    if "sample" not in arrays or not np.array_equal(arrays["sample"], expected):
         raise ValueError(f"chunk file {file} does not hold samples {expected[0]}..")
     return arrays
 
@@ -132,13 +134,10 @@ def to_dataset(arrays: dict, manifest: dict) -> xr.Dataset:
     variables = {}
     for name, spec in manifest["variables"].items():
         variables[name] = (("sample", *spec["dims"]), arrays[name])
-    coords = {"sample": arrays["sample"]}
-    dims_seen = {d for spec in manifest["variables"].values() for d in spec["dims"]}
-    if "time" in dims_seen:
-        coords["time"] = np.asarray(study["ts"])
-    if "coordinate" in dims_seen:
-        coords["coordinate"] = list(COORDINATES)
-    ds = xr.Dataset(variables, coords=coords)
+    dims = [spec["dims"] for spec in manifest["variables"].values()]
+    # stores written before the labels were recorded have none but `time`
+    coords = axis_labels(dims, study["ts"], manifest.get("coords", {}))
+    ds = xr.Dataset(variables, coords={"sample": arrays["sample"]} | coords)
     ds.attrs["study"] = json.dumps(study)
     ds.attrs["fingerprint"] = manifest["fingerprint"]
     ds.attrs["batch_width"] = manifest["batch_width"]
@@ -148,11 +147,24 @@ def to_dataset(arrays: dict, manifest: dict) -> xr.Dataset:
     return ds
 
 
+def axis_labels(dims, ts, labels: dict) -> dict:
+    """Coordinates of the named axes that occur in `dims` (a sequence of variables'
+    dimension names): `time` from `ts`, the others from `labels`."""
+    seen = {d for names in dims for d in names}
+    coords: dict[str, Any] = {}
+    if "time" in seen:
+        coords["time"] = np.asarray(ts)
+    for dim, values in labels.items():
+        if dim in seen and dim != "time":
+            coords[dim] = list(values)
+    return coords
+
+
 def concatenate(chunks: list[dict]) -> dict:
     return {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
 
 
-def open_study(path) -> xr.Dataset:
+def open_study(path: str | Path) -> xr.Dataset:
     """Open a study store as an `xarray.Dataset` (dimension `sample` first).
 
     Only complete chunks are read. `ds.attrs["complete"]` is 1 when every sample is

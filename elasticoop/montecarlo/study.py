@@ -1,4 +1,5 @@
-"""`Study`: the specification of a Monte Carlo study (what varies, what is kept)."""
+"""`Study`: the specification of a Monte Carlo study (what varies, what is kept),
+and what one sample of it computes."""
 
 import hashlib
 import json
@@ -10,14 +11,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._forces import as_force, check_force_shape
-from .._models import AbstractElasticModel
+from .._forces import check_force
+from .._models import AbstractElasticModel, MobileModel
+from .._naming import connection_names, coordinate_names, default_body_names
+from .._options import SimulationOptions
 from .._simulate import simulate
-from .._validation import as_float_array
+from .._validation import as_float_array, check_times
 from .outputs import Output
 from .parameters import _RESERVED, Inputs, Parameter
+from .sampling import draw
 
 SAMPLING = ("random", "lhs")
+
+# Status of a sample whose drawn parameters are not finite (it is not simulated).
+INVALID_SAMPLE = -1
 
 
 def key_data(key) -> np.ndarray:
@@ -36,12 +43,17 @@ def key_data(key) -> np.ndarray:
     return data
 
 
-class Study:
+class Study(eqx.Module):
     """A Monte Carlo study of the elastic system.
 
     Sample $s$ draws every parameter from its distribution with randomness that
     depends only on `(key, s)` (`jax.random.fold_in`), so results do not depend on
     how the samples are split into chunks or over devices and processes.
+
+    A `Study` is a pytree: its arrays (the model, initial state, forces, times, key
+    and the distributions' parameters) are leaves, its structure (parameters and
+    outputs, sampling, `n_samples`, solver options, shapes) is static. Studies that
+    differ only in those arrays share compiled code.
 
     **Arguments:**
 
@@ -55,8 +67,23 @@ class Study:
     - `sampling`: `"random"` (independent draws) or `"lhs"` (Latin hypercube: each
       scalar parameter's range is cut into `n_samples` strata of equal probability,
       each hit once).
-    - `solver`, `rtol`, `atol`, `max_steps`: passed to `simulate`.
+    - `solver`, `rtol`, `atol`, `max_steps`: passed to `simulate` (see
+      `SimulationOptions`; `solver` is a diffrax solver or its name, default
+      `"tsit5"`).
     """
+
+    inputs: Inputs
+    ts: np.ndarray | jax.Array
+    key_data: np.ndarray
+    parameters: tuple[Parameter, ...]
+    _output_fns: tuple[Output, ...]
+    _output_names: tuple[str, ...] = eqx.field(static=True)
+    n_samples: int = eqx.field(static=True)
+    sampling: str = eqx.field(static=True)
+    options: SimulationOptions = eqx.field(static=True)
+    _leaf_shapes: tuple[tuple[str, tuple[int, ...]], ...] = eqx.field(static=True)
+    # (name, shape, dtype) of every entry of one sample's record
+    _record: tuple[tuple[str, tuple[int, ...], np.dtype], ...] = eqx.field(static=True)
 
     def __init__(
         self,
@@ -70,7 +97,7 @@ class Study:
         key=0,
         forces=None,
         sampling: str = "random",
-        solver: diffrax.AbstractSolver | None = None,
+        solver: diffrax.AbstractSolver | str | None = "tsit5",
         rtol: float = 1e-8,
         atol: float = 1e-10,
         max_steps: int = 100_000,
@@ -83,15 +110,8 @@ class Study:
         n = model.n_bodies
         y_init = jnp.asarray(as_float_array(y_init, "Study.y_init", (n, 6)))
         ydot_init = jnp.asarray(as_float_array(ydot_init, "Study.ydot_init", (n, 6)))
-        ts = as_float_array(ts, "Study.ts", (None,))
-        if ts.shape[0] < 2 or not np.all(np.diff(ts) > 0):
-            raise ValueError(
-                f"Study.ts must hold at least 2 strictly increasing times, got "
-                f"{ts.shape[0]} times"
-            )
-        force = as_force(forces)
-        if force is not None:
-            check_force_shape(jax.eval_shape(force, ts[0], y_init, ydot_init).shape, n)
+        ts = check_times(ts, "Study.ts")
+        force = check_force(forces, y_init, ydot_init, ts, "Study.")
         self.inputs = Inputs(model, y_init, ydot_init, force)
         self.ts = ts
 
@@ -106,22 +126,30 @@ class Study:
                 f"Study.sampling must be one of {SAMPLING}, got {sampling!r}"
             )
         self.sampling = sampling
-        for name, value in (("rtol", rtol), ("atol", atol)):
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(
-                    f"Study.{name} must be a positive number, got {value!r}"
-                )
-        if int(max_steps) < 1:
-            raise ValueError(f"Study.max_steps must be >= 1, got {max_steps!r}")
-        self.solver = diffrax.Tsit5() if solver is None else solver
-        self.rtol, self.atol, self.max_steps = float(rtol), float(atol), int(max_steps)
+        self.options = SimulationOptions(
+            "tsit5" if solver is None else solver,
+            rtol,
+            atol,
+            max_steps,
+            owner="Study",
+        )
 
         self.parameters = tuple(parameters)
-        self.leaf_shapes = self._check_parameters()
-        self.outputs = self._check_outputs(outputs)
+        self._leaf_shapes = self._check_parameters()
+        if not any(p.target == "y_init" for p in self.parameters):
+            # every sample starts from the nominal state: it must be regular
+            model.rotation.check_regular(
+                y_init[:, 3:],
+                self.options.gimbal_tol,
+                "Study.y_init",
+                default_body_names(n),
+            )
+        self._output_names, self._output_fns = self._check_outputs(outputs)
+        self._record = self._check_record()
 
-    def _check_parameters(self) -> dict:
+    def _check_parameters(self) -> tuple:
         shapes = {}
+        labels = self._labels()
         for k, p in enumerate(self.parameters):
             if not isinstance(p, Parameter):
                 raise ValueError(
@@ -145,7 +173,8 @@ class Study:
                     f"expression of it such as an indexed entry"
                 ) from None
             if not (
-                hasattr(leaf, "dtype") and jnp.issubdtype(leaf.dtype, jnp.floating)
+                isinstance(leaf, jax.Array | np.ndarray | np.generic)
+                and jnp.issubdtype(leaf.dtype, jnp.floating)
             ):
                 raise ValueError(
                     f"Parameter {p.name!r}: where must select a float array, got "
@@ -174,17 +203,18 @@ class Study:
                     f"inverse CDF, so sampling='lhs' is not possible; give it a ppf "
                     f"or use sampling='random'"
                 )
-            p.leaf_dims(len(shape))
+            dims = p.leaf_dims(len(shape))
+            _check_labelled(f"Parameter {p.name!r}", dims, shape, labels)
             shapes[p.name] = shape
-        return shapes
+        return tuple(shapes.items())
 
-    def _check_outputs(self, outputs) -> dict:
+    def _check_outputs(self, outputs) -> tuple[tuple[str, ...], tuple[Output, ...]]:
         if not isinstance(outputs, Mapping) or not outputs:
             raise ValueError(
                 f"Study.outputs must be a non-empty mapping name -> Output, got "
                 f"{outputs!r}"
             )
-        checked = {}
+        names, fns = [], []
         for name, out in outputs.items():
             if not isinstance(name, str) or not name.isidentifier():
                 raise ValueError(
@@ -202,38 +232,106 @@ class Study:
                         f"the Trajectory, got {out!r}"
                     )
                 out = Output(out)
-            checked[name] = out
-        return checked
+            names.append(name)
+            fns.append(out)
+        return tuple(names), tuple(fns)
+
+    def _check_record(self) -> tuple:
+        """Shapes and dtypes of one sample's record, checked against the outputs'
+        axis names. Traced once per structure: `_record_shapes` is jitted, so a
+        study like an earlier one but for its arrays reuses that trace."""
+        strata = jnp.zeros((self.n_dims if self.sampling == "lhs" else 0,), jnp.int32)
+        self._record = ()  # placeholder: the study is a complete pytree from here
+        template = eqx.filter_eval_shape(_record_shapes, self, jnp.int64(0), strata)
+        labels = self._labels()
+        for name, out in self.outputs.items():
+            shape = template[name].shape
+            if out.dims is not None:
+                if len(out.dims) != len(shape):
+                    raise ValueError(
+                        f"Study.outputs[{name!r}] has dims {out.dims} but returns "
+                        f"shape {shape}"
+                    )
+                _check_labelled(f"Study.outputs[{name!r}]", out.dims, shape, labels)
+        return tuple(
+            (name, tuple(x.shape), np.dtype(x.dtype)) for name, x in template.items()
+        )
+
+    def _record_template(self) -> dict[str, jax.ShapeDtypeStruct]:
+        """Shapes and dtypes of one sample's record."""
+        return {
+            name: jax.ShapeDtypeStruct(shape, dtype)
+            for name, shape, dtype in self._record
+        }
+
+    def _labels(self) -> dict[str, list]:
+        """Labels of the named axes shared with the trajectory export: `time`,
+        `body`, `coordinate` and (`MobileModel`) `connection`."""
+        model = self.inputs.model
+        bodies = default_body_names(model.n_bodies)
+        labels = {
+            "time": np.asarray(self.ts).tolist(),
+            "body": list(bodies),
+            "coordinate": list(coordinate_names(model.convention)),
+        }
+        if isinstance(model, MobileModel):
+            labels["connection"] = list(
+                connection_names(None, model.connectivity, bodies)
+            )
+        return labels
+
+    @property
+    def outputs(self) -> dict[str, Output]:
+        """The outputs, name -> `Output`."""
+        return dict(zip(self._output_names, self._output_fns))
+
+    @property
+    def leaf_shapes(self) -> dict[str, tuple[int, ...]]:
+        """The shape of each parameter's leaf, name -> shape."""
+        return dict(self._leaf_shapes)
 
     @property
     def n_dims(self) -> int:
         """Number of scalar uncertain parameters (the dimension of the design)."""
-        return int(sum(np.prod(s, dtype=int) for s in self.leaf_shapes.values()))
+        return int(sum(np.prod(s, dtype=int) for _, s in self._leaf_shapes))
+
+    @property
+    def solver(self) -> diffrax.AbstractSolver:
+        """The diffrax solver of every sample."""
+        return self.options.diffrax_solver()
+
+    @property
+    def rtol(self) -> float:
+        return float(self.options.rtol)
+
+    @property
+    def atol(self) -> float:
+        return float(self.options.atol)
+
+    @property
+    def max_steps(self) -> int:
+        return int(self.options.max_steps)
 
     def simulate(self, inputs: Inputs, **overrides):
         """`simulate` of one sample's `inputs` with the study's times, solver and
         tolerances (never raising: failures are reported in `Trajectory.status`)."""
-        kwargs = dict(
-            forces=inputs.forces,
-            solver=self.solver,
-            rtol=self.rtol,
-            atol=self.atol,
-            max_steps=self.max_steps,
-            throw=False,
-        )
-        kwargs.update(overrides)
+        kwargs = self.options.kwargs() | dict(forces=inputs.forces, throw=False)
         return simulate(
-            inputs.model, inputs.y_init, inputs.ydot_init, self.ts, **kwargs
+            inputs.model,
+            inputs.y_init,
+            inputs.ydot_init,
+            self.ts,
+            **(kwargs | overrides),
         )
 
     def describe(self) -> dict:
         """A JSON-able description of the study (recorded in the store's manifest)."""
         return {
             "n_samples": self.n_samples,
-            "key": self.key_data.tolist(),
+            "key": np.asarray(self.key_data).tolist(),
             "sampling": self.sampling,
-            "ts": self.ts.tolist(),
-            "solver": type(self.solver).__name__,
+            "ts": np.asarray(self.ts).tolist(),
+            "solver": self.options.solver_name,
             "rtol": self.rtol,
             "atol": self.atol,
             "max_steps": self.max_steps,
@@ -258,6 +356,46 @@ class Study:
         """SHA-256 of `describe()`: equal fingerprints mean the same study."""
         text = json.dumps(self.describe(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _check_labelled(what: str, dims, shape, labels: dict) -> None:
+    """Axes named like the labelled ones (`time`, `body`, ...) must match them."""
+    for axis, (dim, length) in enumerate(zip(dims, shape)):
+        if dim in labels and length != len(labels[dim]):
+            raise ValueError(
+                f"{what}: axis {axis} is named {dim!r}, which has {len(labels[dim])} "
+                f"entries in this study, but has length {length}"
+            )
+
+
+def one_sample(study: Study, index, strata_row) -> dict:
+    """Draw, simulate and reduce sample `index`: its record (sample number,
+    status, event time, parameter values, outputs). A sample whose draws are not
+    finite is simulated at the nominal values and reported as `INVALID_SAMPLE`."""
+    raw = draw(study, index, strata_row)
+    finite = jnp.array(True)
+    for value in raw.values():
+        finite = finite & jnp.all(jnp.isfinite(value))
+    inputs, values = study.inputs, {}
+    for p in study.parameters:
+        fallback = 1.0 if p.relative else p.nominal(study.inputs)
+        inputs = p.apply(inputs, jnp.where(finite, raw[p.name], fallback))
+        values[p.name] = jnp.where(finite, p.nominal(inputs), raw[p.name])
+    traj = study.simulate(inputs)
+    outputs = {
+        name: jnp.where(finite, out(traj), jnp.nan)
+        for name, out in study.outputs.items()
+    }
+    return {
+        "sample": jnp.asarray(index, jnp.int64),
+        "status": jnp.where(finite, traj.status, INVALID_SAMPLE).astype(jnp.int32),
+        "event_time": jnp.where(finite, traj.event_time, jnp.nan),
+        **values,
+        **outputs,
+    }
+
+
+_record_shapes = eqx.filter_jit(one_sample)
 
 
 def _inputs_hash(inputs: Inputs) -> str:
