@@ -5,8 +5,7 @@ check the library's autodiff right-hand side and to measure how fast it could be
 
 - `numpy_rhs`: plain NumPy, what a researcher would write from the appendix: per body
   the printed $W_i$ and angular rows of $w_i$ (ZXZ, with corrections 2 and 3 of
-  docs/model.md),
-  or $W_{rot} = L_\\omega^T I L_\\omega$ and
+  docs/model.md), or $W_{rot} = L_\\omega^T I L_\\omega$ and
   $L_\\omega^T (I \\dot L_\\omega \\dot{\\mathcal A} + \\omega \\times I\\omega)$ (RPY),
   a loop over connections, and `np.linalg.solve` per body. `solve_ivp_mobile`
   integrates it with `scipy.integrate.solve_ivp`.

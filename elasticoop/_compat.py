@@ -38,7 +38,8 @@ def _version(text: str) -> tuple[int, int, int]:
     numbers = re.match(r"(\d+)\.(\d+)(?:\.(\d+))?", text)
     if numbers is None:
         return (0, 0, 0)
-    return tuple(int(n or 0) for n in numbers.groups())
+    major, minor, patch = numbers.groups()
+    return (int(major), int(minor), int(patch or 0))
 
 
 def check_equinox_version(version: str | None = None) -> None:

@@ -10,14 +10,16 @@ Scalar = Float[Array, ""]
 Vector3 = Float[Array, "3"]
 Vector6 = Float[Array, "6"]
 Matrix3 = Float[Array, "3 3"]
-Matrix = Float[Array, "rows cols"]
 # A matrix over the stacked coordinates of all bodies, `(6(m+1), 6(m+1))`.
 DofMatrix = Float[Array, "dofs dofs"]
 BodyState = Float[Array, "6"]
 State = Float[Array, "bodies 6"]
+# A state as the public functions of the dynamics accept it: JAX or NumPy.
+StateLike = Float[ArrayLike, "bodies 6"]
 StateSeries = Float[Array, "times bodies 6"]
 Times = Float[Array, " times"]
-Pairs = Int[Array, "connections 2"]
+# The connected pairs of bodies `(i, j)`, a constant of a model's structure.
+Pairs = Int[np.ndarray, "connections 2"]
 # One value per body, e.g. the kinetic energies `T_i`.
 BodyScalars = Float[Array, " bodies"]
 # The blocks `W_i` of the block-diagonal mass matrix.

@@ -39,6 +39,7 @@ from ._custom_types import (
     MassBlocks,
     Scalar,
     State,
+    StateLike,
 )
 from ._models import AbstractElasticModel
 
@@ -125,8 +126,9 @@ def _ldl_solve3(
     return x1, x2, x3
 
 
-def mass_matrix(model: AbstractElasticModel, y: State) -> MassBlocks:
+def mass_matrix(model: AbstractElasticModel, y: StateLike) -> MassBlocks:
     """The diagonal blocks $W_i(Y_i)$ of the mass matrix, shape `(bodies, 6, 6)`."""
+    y = jnp.asarray(y)
     q = _coordinates(y)
     W = _mass_matrix_columns(model, q, _coordinates(jnp.zeros_like(y)), _COORDINATES)
     return jnp.stack(
@@ -134,21 +136,23 @@ def mass_matrix(model: AbstractElasticModel, y: State) -> MassBlocks:
     )
 
 
-def velocity_terms(model: AbstractElasticModel, y: State, ydot: State) -> State:
+def velocity_terms(model: AbstractElasticModel, y: StateLike, ydot: StateLike) -> State:
     """$\\dot W_i \\dot Y_i - \\partial T_i/\\partial Y_i$ per body, shape
     `(bodies, 6)` (the Coriolis and centrifugal terms of $w$)."""
+    y, ydot = jnp.asarray(y), jnp.asarray(ydot)
     c = _velocity_terms(model, _coordinates(y), _coordinates(ydot))
     return jnp.stack(c, -1)
 
 
-def elastic_forces(model: AbstractElasticModel, y: State) -> State:
+def elastic_forces(model: AbstractElasticModel, y: StateLike) -> State:
     """$\\partial \\Pi/\\partial Y$, shape `(bodies, 6)` (includes the
     $\\partial\\pi_a/\\partial Y$ term of Appendix B)."""
     return jax.grad(model.potential)(y)
 
 
-def damping_forces(model: AbstractElasticModel, y: State, ydot: State) -> State:
+def damping_forces(model: AbstractElasticModel, y: StateLike, ydot: StateLike) -> State:
     """$\\partial R/\\partial \\dot Y$, shape `(bodies, 6)`."""
+    y = jnp.asarray(y)
     return jax.grad(model.dissipation, argnums=1)(y, ydot)
 
 
@@ -172,7 +176,7 @@ def _balance(
 
 
 def accelerations(
-    model: AbstractElasticModel, y: State, ydot: State, applied: State
+    model: AbstractElasticModel, y: StateLike, ydot: StateLike, applied: StateLike
 ) -> tuple[State, State]:
     """Solve $W\\ddot Y = G + F - w$ per body (3x3 blocks, closed-form $LDL^T$).
 
@@ -183,6 +187,7 @@ def accelerations(
     $\\partial R/\\partial\\dot Y$
     (whose product with $\\dot Y$ is the dissipated power $2R$).
     """
+    y, ydot, applied = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
     W, b, damping = _balance(model, y, ydot, applied)
     yddot: list[BodyCoordinate] = []
     for block in _BLOCKS:
@@ -192,11 +197,11 @@ def accelerations(
 
 def constrained_accelerations(
     model: AbstractElasticModel,
-    y: State,
-    ydot: State,
-    applied: State,
+    y: StateLike,
+    ydot: StateLike,
+    applied: StateLike,
     mask: Mask,
-    yddot_prescribed: State,
+    yddot_prescribed: StateLike,
 ) -> tuple[State, State, State]:
     """Accelerations and reactions with the coordinates in `mask` prescribed.
 
@@ -219,6 +224,8 @@ def constrained_accelerations(
     is $\\partial R/\\partial\\dot Y$.
     """
     mask = np.asarray(mask, dtype=bool)
+    y, ydot, applied = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
+    yddot_prescribed = jnp.asarray(yddot_prescribed)
     W, b, damping = _balance(model, y, ydot, applied)
     a = _coordinates(yddot_prescribed)
     # Only coordinates prescribed for some body enter the elimination (a Python-level
@@ -253,10 +260,11 @@ def constrained_accelerations(
 
 
 def inverse_dynamics(
-    model: AbstractElasticModel, y: State, ydot: State, yddot: State
+    model: AbstractElasticModel, y: StateLike, ydot: StateLike, yddot: StateLike
 ) -> State:
     """Generalized forces that realise a motion: $F = W\\ddot Y + w - G$,
     shape `(bodies, 6)`."""
+    y, ydot, yddot = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(yddot)
     W, b, _ = _balance(model, y, ydot, jnp.zeros_like(y))
     a = _coordinates(yddot)
     return jnp.stack(

@@ -24,7 +24,7 @@ def is_concrete(*xs: Any) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(xs))
 
 
-def _show(value: ArrayLike) -> str:
+def _show(value: Any) -> str:
     arr = np.asarray(value)
     if arr.size > 12:
         return f"array of shape {arr.shape}"

@@ -18,7 +18,7 @@ PACKAGE = ROOT / "elasticoop"
 
 @pytest.fixture(scope="module")
 def graph():
-    return grimp.build_graph("elasticoop")
+    return grimp.build_graph("elasticoop", cache_dir=None)
 
 
 def _circles(graph) -> list[set[str]]:

@@ -122,9 +122,9 @@ def report_user_errors(command: str, *, debug: bool = False, paths=()):
 
 def _report_bug(prefix: str, outcome: _Outcome) -> None:
     traceback.print_exc()
-    kind, err, _ = sys.exc_info()
+    err = sys.exc_info()[1]
     print(
-        f"{prefix}: internal error ({kind.__name__}: {err}). This is a bug in "
+        f"{prefix}: internal error ({type(err).__name__}: {err}). This is a bug in "
         "elasticoop, not a problem with your input: please report it with the "
         "traceback above.",
         file=sys.stderr,

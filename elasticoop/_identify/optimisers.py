@@ -21,7 +21,7 @@
 
 import dataclasses
 import time
-from typing import Any
+from typing import Any, TypeAlias
 
 import equinox as eqx
 import jax
@@ -81,6 +81,11 @@ class _Progress:
             )
 
 
+# `optx.FunctionInfo.ResidualJac` is a class attribute, which a type checker does not
+# accept as a type: annotate with this alias instead.
+_ResidualJac: TypeAlias = Any
+
+
 class _LMState(eqx.Module):
     """The state of the Levenberg-Marquardt iteration, in the solver's variables
     $v$: the last accepted point and the residuals and Jacobian there, the next
@@ -90,7 +95,7 @@ class _LMState(eqx.Module):
     first_step: jax.Array
     y: jax.Array
     y_eval: jax.Array
-    f_info: optx.FunctionInfo.ResidualJac
+    f_info: _ResidualJac
     search_state: Any
     descent_state: Any
 
@@ -101,7 +106,7 @@ def _lm_parts():
     return optx.ClassicalTrustRegion(), optx.DampedNewtonDescent(linear_solver=lx.QR())
 
 
-def _f_info(v, problem) -> optx.FunctionInfo.ResidualJac:
+def _f_info(v, problem) -> _ResidualJac:
     """Residuals and forward-mode Jacobian with respect to $v$, where
     $u = $ `u_offset + u_scale * v`."""
     u = problem.u_offset + problem.u_scale * v
@@ -247,7 +252,7 @@ def levenberg_marquardt(
                 show(trace.n_iterations, value, gnorm, "trial failed")
         if result != optx.RESULTS.successful:
             trace.status = "failed"
-            trace.reason = str(optx.RESULTS[result])
+            trace.reason = str(optx.RESULTS[result])  # type: ignore[misc]
             break
         if rejected_in_row >= MAX_REJECTIONS:
             trace.status = "converged"

@@ -13,6 +13,7 @@ from .._custom_types import (
     DofMatrix,
     LinkCoordinate,
     LinkCoordinates,
+    Pairs,
     Scalar,
     State,
     Vector3,
@@ -236,7 +237,7 @@ class MobileModel(AbstractElasticModel):
         self.gravity = check_gravity(gravity)
 
     @property
-    def pairs(self) -> Int[np.ndarray, "connections 2"]:
+    def pairs(self) -> Pairs:
         """The connected pairs $(i, j)$, an integer array `(connections, 2)` (a
         constant of the model's structure)."""
         return np.array(self.connectivity, dtype=np.int32).reshape(-1, 2)

@@ -46,7 +46,7 @@ class _Scene:
     def index(self, t: float) -> int:
         return int(np.argmin(np.abs(self.ts - t)))
 
-    def draw(self, ax, k: int, labels: bool = True):
+    def draw(self, ax, k: int | np.integer, labels: bool = True):
         r, R = self.r[k], self.R[k]
         for i, j in self.links:
             ax.plot(*np.stack([r[i], r[j]]).T, color="0.45", linewidth=2.5)
