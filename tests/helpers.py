@@ -1,8 +1,10 @@
-"""Shared test models, states and closed forms (the appendix, MODEL.md's fixes)."""
+"""Shared test models, states and closed forms (the appendix, with the corrections
+of docs/model.md), and the common settings of the physics checks' simulations."""
 
 import functools
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -63,7 +65,8 @@ def zxz_mass_matrix(m, A, B, C, theta, phi):
 
 
 def zxz_wdot_ydot(A, B, C, theta, phi, dpsi, dtheta, dphi):
-    """The printed vector Wdot_i ydot_i with MODEL.md's fix 3 (phi row restored)."""
+    """The printed vector Wdot_i ydot_i with correction 3 of docs/model.md (phi row
+    restored)."""
     st, ct = np.sin(theta), np.cos(theta)
     s2p, c2p = np.sin(2 * phi), np.cos(2 * phi)
     sp2, cp2 = np.sin(phi) ** 2, np.cos(phi) ** 2
@@ -102,7 +105,7 @@ def zxz_dT_dy(A, B, C, theta, phi, dpsi, dtheta, dphi):
 
 def zxz_w_angular(A, B, C, theta, phi, dpsi, dtheta, dphi):
     """Angular rows of the appendix's w_i (elastic/damping parts excluded), with
-    MODEL.md's fix 2 (the missing minus before C in the theta row)."""
+    correction 2 of docs/model.md (the missing minus before C in the theta row)."""
     st, ct = np.sin(theta), np.cos(theta)
     s2p, c2p = np.sin(2 * phi), np.cos(2 * phi)
     sp2, cp2 = np.sin(phi) ** 2, np.cos(phi) ** 2
@@ -123,6 +126,47 @@ def zxz_w_angular(A, B, C, theta, phi, dpsi, dtheta, dphi):
         + 0.5 * dtheta**2 * (A - B) * s2p
     )
     return np.array([psi_row, theta_row, phi_row])
+
+
+# `simulate` compiles once per model structure (bodies, connections, convention,
+# prescribed mask and motion type), force type, number of output times and solver
+# settings; JAX keeps the executable for the session. The physics checks simulate
+# through `run_tight`, which fixes all but the model, so that after the first check
+# on a model structure the others reuse its compilation.
+SAMPLES = 4001
+TIGHT = dict(rtol=1e-12, atol=1e-14)
+
+
+def run_tight(model, y, ydot, t_end, forces=None, **kwargs):
+    """`simulate` from t = 0 to `t_end` at SAMPLES output times with TIGHT
+    tolerances. The forces are a constant array `(bodies, 6)`: zero without
+    `forces`, with a zero object row in front of contact forces `(m, 6)`. The
+    keyword arguments (`prescribed`, `throw`) go to `simulate`; differentiable and
+    `vmap`-able in every array argument."""
+    n = model.n_bodies
+    rows = jnp.zeros((n, 6)) if forces is None else jnp.asarray(forces)
+    if rows.shape[0] == n - 1:
+        rows = jnp.concatenate([jnp.zeros((1, 6), rows.dtype), rows])
+    ts = jnp.linspace(0.0, t_end, SAMPLES)
+    return eo.simulate(model, y, ydot, ts, forces=rows, **TIGHT, **kwargs)
+
+
+class Wave(eo.AbstractMotion):
+    """Prescribed poses swaying about `y0` (positions and angles); zero amplitude
+    holds them still (`hold`), in a run compiled once for both."""
+
+    y0: jax.Array
+    amplitude: jax.Array  # (bodies, 6)
+    omega: float = 4.0
+
+    def __call__(self, t):
+        return self.y0 + self.amplitude * jnp.sin(self.omega * t)
+
+
+def hold(mask, y):
+    """The coordinates in `mask` held at their values in `y`."""
+    y = jnp.asarray(y)
+    return eo.PrescribedMotion(mask, Wave(y, jnp.zeros_like(y)))
 
 
 def small_two_body_model():

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import CONVENTIONS, three_body_model, three_body_state
+from helpers import CONVENTIONS, run_tight, three_body_model, three_body_state
 
 import elasticoop as eo
 
@@ -85,10 +85,9 @@ def test_solve_ivp_reference_matches_simulate():
     ydot0 = jnp.zeros_like(y0).at[0].set(jnp.array([0.1, -0.1, 0.2, 0.3, -0.2, 0.1]))
     lift = np.zeros((2, 6))
     lift[:, 2] = 3.0
-    ts = jnp.linspace(0.0, 0.05, 6)
-    ours = eo.simulate(model, y0, ydot0, ts, forces=lift, rtol=1e-10, atol=1e-12)
+    ours = run_tight(model, y0, ydot0, 0.05, forces=lift)
     theirs = reference.solve_ivp_mobile(
-        model, y0, ydot0, ts, force=lift, rtol=1e-10, atol=1e-12, method="DOP853"
+        model, y0, ydot0, ours.ts, force=lift, rtol=1e-10, atol=1e-12, method="DOP853"
     )
     np.testing.assert_allclose(np.asarray(ours.y), theirs, rtol=0, atol=1e-8)
     assert np.max(np.abs(theirs[-1] - theirs[0])) > 1e-3  # it did move
@@ -108,6 +107,8 @@ def test_suite_at_smoke_size(tmp_path):
     assert [r["m"] for r in bench["scaling"]["star"]["rows"]] == [1, 4]
 
 
+# A fresh process; the fast tests of the compilation cache are in test_cache.py.
+@pytest.mark.slow
 def test_compilation_cache_in_fresh_process(tmp_path):
     """`enable_compilation_cache` stores executables, including one that uses
     `equinox.error_if` (a host callback in the default mode), on disk."""

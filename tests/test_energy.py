@@ -1,16 +1,20 @@
 """Energy: conservation, dE/dt = -2R, and the work-energy balance with forces."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import three_body_model, three_body_state
+from helpers import SAMPLES, TIGHT, run_tight, three_body_model, three_body_state
 from scipy.integrate import simpson
 
 import elasticoop as eo
 
-# Conservation: rtol=1e-10 integration keeps the drift far below 1e-8.
+# The runs use `run_tight`'s settings (helpers): SAMPLES = 4001 output times and
+# TIGHT tolerances, rtol = 1e-12.
+# Conservation: rtol <= 1e-10 integration keeps the drift far below 1e-8.
 CONSERVATION_RTOL = 1e-8
-# Finite-difference dE/dt (4th-order stencil, dt = 2.5e-4 s, modes up to ~150 rad/s).
+# Finite-difference dE/dt (4th-order stencil, dt = 0.5 s / 4000 = 1.25e-4 s, modes
+# up to ~150 rad/s).
 POWER_RTOL = 1e-5
 # Work by Simpson's rule on 4001 samples against the solver's energy change.
 WORK_RTOL = 1e-6
@@ -24,12 +28,13 @@ def _perturbed(convention="zxz"):
     return y, ydot
 
 
-@pytest.mark.parametrize("convention", ["zxz", "rpy"])
+@pytest.mark.parametrize(
+    "convention", ["zxz", pytest.param("rpy", marks=pytest.mark.slow)]
+)
 def test_energy_conserved_without_damping_or_forces(convention):
     model = three_body_model(convention, damping=False)
     y, ydot = _perturbed(convention)
-    ts = jnp.linspace(0.0, 2.0, 401)  # ~20 periods of the slowest link mode
-    traj = eo.simulate(model, y, ydot, ts, rtol=1e-10, atol=1e-12)
+    traj = run_tight(model, y, ydot, 2.0)  # ~20 periods of the slowest link mode
     energy = np.asarray(traj.total_energy())
     mechanical = float(traj.kinetic_energy()[0] + traj.elastic_energy()[0])
     drift = np.max(np.abs(energy - energy[0])) / mechanical
@@ -44,9 +49,8 @@ def _fourth_order_derivative(x, dt):
 def test_energy_rate_equals_minus_dissipated_power():
     model = three_body_model(damping=True)
     y, ydot = _perturbed()
-    ts = jnp.linspace(0.0, 0.5, 2001)
-    traj = eo.simulate(model, y, ydot, ts, rtol=1e-11, atol=1e-13)
-    dt = float(ts[1] - ts[0])
+    traj = run_tight(model, y, ydot, 0.5)
+    dt = float(traj.ts[1] - traj.ts[0])
     rate = _fourth_order_derivative(np.asarray(traj.total_energy()), dt)
     power = np.asarray(traj.dissipated_power())[2:-2]
     assert np.max(power) > 1.0  # the dampers really work
@@ -79,19 +83,32 @@ def _forces_cases():
 FORCES = _forces_cases()
 
 
-@pytest.mark.parametrize("name", list(FORCES))
+# The constant forces share one compiled run (`run_tight`); the others compile
+# their own (SampledForce is simulated in the fast tests of scenario files).
+@pytest.mark.parametrize(
+    "name",
+    [
+        "constant",
+        pytest.param("sampled", marks=pytest.mark.slow),
+        pytest.param("feedback", marks=pytest.mark.slow),
+        "object_disturbance",
+    ],
+)
 def test_work_energy_balance_with_forces(name):
     force = FORCES[name]
     model = three_body_model(damping=True)
     y, ydot = _perturbed()
-    ts = jnp.linspace(0.0, 0.5, 4001)
-    traj = eo.simulate(model, y, ydot, ts, forces=force, rtol=1e-11, atol=1e-13)
+    if isinstance(force, eo.ConstantForce):
+        traj = run_tight(model, y, ydot, 0.5, forces=force.F)
+    else:
+        samples = jnp.linspace(0.0, 0.5, SAMPLES)
+        traj = eo.simulate(model, y, ydot, samples, forces=force, **TIGHT)
+    ts = traj.ts
     # Independent quadrature of the power F . Ydot and of 2R along the samples.
-    applied = np.stack(
-        [
-            np.asarray(eo._forces.pad_to_bodies(force(t, yy, vv), 3))
-            for t, yy, vv in zip(ts, traj.y, traj.ydot)
-        ]
+    applied = np.asarray(
+        jax.vmap(lambda t, yy, vv: eo._forces.pad_to_bodies(force(t, yy, vv), 3))(
+            ts, traj.y, traj.ydot
+        )
     )
     power_in = np.sum(applied * np.asarray(traj.ydot), axis=(1, 2))
     work = simpson(power_in, x=np.asarray(ts))

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import three_body_model, three_body_state
+from helpers import run_tight, three_body_model, three_body_state
 
 import elasticoop as eo
 
@@ -169,7 +169,7 @@ def test_gimbal_lock_raises_with_body_and_time():
     y0, ydot0 = _spin(RATE)
     t_lock = (THETA0 - np.arcsin(eo.GIMBAL_TOL)) / abs(RATE)
     with pytest.raises(eo.SimulationError, match=r"gimbal lock: body 0") as info:
-        eo.simulate(SPINNER, y0, ydot0, jnp.linspace(0.0, 1.0, 11))
+        run_tight(SPINNER, y0, ydot0, 1.0)
     traj = info.value.trajectory
     assert int(traj.status) == eo.Status.GIMBAL_LOCK
     np.testing.assert_allclose(float(traj.event_time), t_lock, rtol=1e-8)
@@ -180,12 +180,13 @@ def test_gimbal_lock_raises_with_body_and_time():
     assert np.all(np.isfinite(np.asarray(traj.y)[np.asarray(traj.ts) < t_lock]))
 
 
+@pytest.mark.slow  # compiles the batched run; test_transforms checks vmap fast
 def test_gimbal_lock_in_a_batch_is_flagged_not_raised():
     rates = jnp.array([0.3, RATE, -0.2])
 
     def run(rate):
         y0, ydot0 = _spin(rate)
-        return eo.simulate(SPINNER, y0, ydot0, jnp.linspace(0.0, 1.0, 11))
+        return run_tight(SPINNER, y0, ydot0, 1.0)
 
     batch = jax.vmap(run)(rates)
     np.testing.assert_array_equal(batch.status, [0, eo.Status.GIMBAL_LOCK, 0])
@@ -194,13 +195,9 @@ def test_gimbal_lock_in_a_batch_is_flagged_not_raised():
     np.testing.assert_allclose(batch.y[0], single.y, rtol=1e-13)
     # throw=True raises even when traced
     with pytest.raises(Exception, match="simulation stopped early"):
-        jax.vmap(
-            lambda r: (
-                eo.simulate(
-                    SPINNER, *_spin(r), jnp.linspace(0.0, 1.0, 11), throw=True
-                ).y
-            )
-        )(rates).block_until_ready()
+        jax.vmap(lambda r: run_tight(SPINNER, *_spin(r), 1.0, throw=True).y)(
+            rates
+        ).block_until_ready()
 
 
 def test_collapsed_link_raises():
@@ -212,12 +209,11 @@ def test_collapsed_link_raises():
     model = eo.MobileModel(bodies, [link], gravity=0.0)
     y0 = jnp.array([[rho / 2, 0, 0, *UP], [-rho / 2, 0, 0, *UP]])
     ydot0 = jnp.zeros_like(y0).at[0, 0].set(-v / 2).at[1, 0].set(v / 2)
-    ts = jnp.linspace(0, 0.2, 5)
     with pytest.raises(
         eo.SimulationError, match=r"connection 0 between bodies 0 and 1"
     ):
-        eo.simulate(model, y0, ydot0, ts)
-    traj = eo.simulate(model, y0, ydot0, ts, throw=False)
+        run_tight(model, y0, ydot0, 0.2)
+    traj = run_tight(model, y0, ydot0, 0.2, throw=False)
     assert int(traj.status) == eo.Status.LINK_COLLAPSED
     omega = np.sqrt(c / (m / 2))
     t_hit = np.arcsin((1 - eo.LINK_TOL) * rho * omega / v) / omega
@@ -230,10 +226,10 @@ def test_zero_rest_length_link_passes_through_zero_smoothly():
     link = eo.Connection(0, 1, stiffness=[c] * 6, damping=[0.0] * 6)
     model = eo.MobileModel(bodies, [link], gravity=0.0)
     y0 = jnp.array([[0.1, 0, 0, *UP], [-0.1, 0, 0, *UP]])
-    ts = jnp.linspace(0, 0.5, 11)
-    traj = eo.simulate(model, y0, jnp.zeros_like(y0), ts, rtol=1e-11, atol=1e-13)
+    traj = run_tight(model, y0, jnp.zeros_like(y0), 0.5)
     omega = np.sqrt(c / (m / 2))
-    np.testing.assert_allclose(traj.y[:, 0, 0], 0.1 * np.cos(omega * ts), atol=1e-9)
+    expected = 0.1 * np.cos(omega * np.asarray(traj.ts))
+    np.testing.assert_allclose(traj.y[:, 0, 0], expected, atol=1e-9)
 
 
 def test_max_steps_is_reported():

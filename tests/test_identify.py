@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from helpers import three_body_model
+from helpers import run_tight, three_body_model
 
 import elasticoop as eo
 from elasticoop._identify import (
@@ -43,13 +43,18 @@ def _experiments(model, y0, ts, seeds, scale=(0.05, 0.3), noise=None, sigma=None
     forces = _lift(model)
     for seed in seeds:
         rng = np.random.default_rng(seed)
-        rates = rng.normal(size=(model.n_bodies, 6)) * np.repeat(scale, 3)
+        rates = _rates(model, rng, scale)
         traj = eo.simulate(model, y0, rates, ts, forces=forces)
         y = np.asarray(traj.y)
         if noise is not None:
             y = y + noise * rng.normal(size=y.shape)
         out.append((traj, Experiment(ts, y, y0, rates, forces=forces, sigma=sigma)))
     return out
+
+
+def _rates(model, rng, scale=(0.05, 0.3)):
+    """Random initial rates, `scale` for the translations and for the angles."""
+    return rng.normal(size=(model.n_bodies, 6)) * np.repeat(scale, 3)
 
 
 def _exact_derivatives(model, traj, forces):
@@ -89,6 +94,10 @@ def two_body_runs():
     return model, _experiments(model, y0, TS_RECOVERY, seeds=(1, 2))
 
 
+# A fit compiles the Levenberg-Marquardt step with forward-mode derivatives through
+# simulate (about half a minute); the fast tests cover the data, the equation-error
+# estimate and the checks of the arguments.
+@pytest.mark.slow
 def test_noise_free_recovery_from_2x_off(two_body_runs):
     model, runs = two_body_runs
     start = eqx.tree_at(STIFF_DAMP, model, (2 * model.stiffness, 2 * model.damping))
@@ -108,6 +117,7 @@ def test_noise_free_recovery_from_2x_off(two_body_runs):
     assert any("started from the equation-error start" in n for n in result.notes)
 
 
+@pytest.mark.slow  # a fit of its own (one experiment, stiffness only)
 def test_start_is_the_candidate_that_fits_better():
     """With noisy samples the equation-error estimate is off by far more than the
     noise allows; starting from the true values, `identify` must keep them."""
@@ -123,14 +133,17 @@ def test_start_is_the_candidate_that_fits_better():
     assert any("started from the model's values" in n for n in result.notes)
 
 
-def test_equation_error_exact_derivatives(two_body_runs):
-    model, runs = two_body_runs
+def test_equation_error_exact_derivatives():
+    model, y0 = _two_body()
     forces = _lift(model)
     exps = []
-    for traj, e in runs:
+    for seed in (1, 2):
+        rates = _rates(model, np.random.default_rng(seed))
+        # `run_tight`: the compilation of the other two-body physics checks
+        traj = run_tight(model, y0, rates, 0.3, forces=forces)
         ydot, yddot = _exact_derivatives(model, traj, forces)
         exps.append(
-            Experiment(e.ts, e.y, e.y_init, e.ydot_init, forces, ydot=ydot, yddot=yddot)
+            Experiment(traj.ts, traj.y, y0, rates, forces, ydot=ydot, yddot=yddot)
         )
     start = eqx.tree_at(STIFF_DAMP, model, (2 * model.stiffness, 0.3 * model.damping))
     fitted = equation_error(start, exps, STIFF_DAMP)
@@ -185,6 +198,7 @@ def test_standard_errors_are_calibrated():
     assert np.all(np.abs(bias) < 3 * reported / np.sqrt(repeats)), bias / reported
 
 
+@pytest.mark.slow  # a fit like the other one-experiment fits above (shared)
 def test_unexcited_parameters_are_flagged():
     model, y0 = _two_body()
     # the grasp moves along the link (x) only: no y/z deflection, no rotation

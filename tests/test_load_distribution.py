@@ -4,7 +4,7 @@ held object (reactions converted to physical wrenches)."""
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import UPRIGHT
+from helpers import UPRIGHT, hold, run_tight
 
 import elasticoop as eo
 
@@ -62,11 +62,12 @@ def test_held_object_statics():
     """Grasps held still at a static equilibrium: the grasp wrenches carry the
     weight of everything and balance the moment of the grasps' own weight.
 
-    The appendix's springs are not rotation invariant (MODEL.md): a link force
-    C delta with unequal cx, cy, cz is not along the link, and the Euler-angle
-    springs' equal and opposite generalized torques are equal and opposite
-    physical torques only between equally oriented bodies. The assembly's exact
-    moment balance therefore needs isotropic link stiffness and one orientation."""
+    The appendix's springs are not rotation invariant (docs/model.md, section 3.4):
+    a link force C delta with unequal cx, cy, cz is not along the link, and the
+    Euler-angle springs' equal and opposite generalized torques are equal and
+    opposite physical torques only between equally oriented bodies. The assembly's
+    exact moment balance therefore needs isotropic link stiffness and one
+    orientation."""
     up = UPRIGHT["zxz"]
     y = jnp.array(
         [
@@ -86,9 +87,8 @@ def test_held_object_statics():
     grasps = np.zeros((3, 6), bool)
     grasps[1:] = True
     eq = eo.static_equilibrium(model, y, grasps)
-    hold = eo.PrescribedMotion(grasps, lambda t: eq.y)
-    ts = jnp.linspace(0.0, 0.1, 3)
-    traj = eo.simulate(model, eq.y, jnp.zeros_like(eq.y), ts, prescribed=hold)
+    held = hold(grasps, eq.y)
+    traj = run_tight(model, eq.y, jnp.zeros_like(eq.y), 0.1, prescribed=held)
     ld = eo.trajectory_load_distribution(traj)
     masses = np.array([2.0, 0.3, 0.25])
     g = 9.81

@@ -1,7 +1,10 @@
 """The main job: the built-in scenario runs and its energy balance closes."""
 
+import runpy
 import subprocess
 import sys
+
+import pytest
 
 from elasticoop._cli.demo import run_default
 from elasticoop._io.summary import format_summary
@@ -23,6 +26,16 @@ def test_default_scenario_energy_balance_closes():
     assert "energy balance" in text and "grasp 2" in text
 
 
+def test_dash_m_entry_point_runs_the_command_line(monkeypatch, capsys):
+    """`python -m elasticoop` is the command line (run here in this process)."""
+    monkeypatch.setattr(sys, "argv", ["elasticoop", "--help"])
+    with pytest.raises(SystemExit) as exit_:
+        runpy.run_module("elasticoop", run_name="__main__")
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.startswith("usage: elasticoop")
+
+
+@pytest.mark.slow  # a fresh process compiles the demo again
 def test_python_dash_m_runs_the_demo():
     out = subprocess.run(
         [sys.executable, "-m", "elasticoop"],

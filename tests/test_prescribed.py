@@ -6,14 +6,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import three_body_model, three_body_state
+from helpers import (
+    SAMPLES,
+    TIGHT,
+    Wave,
+    run_tight,
+    three_body_model,
+    three_body_state,
+)
 
 import elasticoop as eo
 
-TS = jnp.linspace(0.0, 1.0, 201)
+# The output times of `run_tight` over one second.
+TS = jnp.linspace(0.0, 1.0, SAMPLES)
 CONTACTS = np.zeros((3, 6), bool)
 CONTACTS[1:] = True
-TIGHT = dict(rtol=1e-10, atol=1e-12)
 
 
 class Ballistic(eo.AbstractMotion):
@@ -28,18 +35,8 @@ class Ballistic(eo.AbstractMotion):
         return self.y0 + t * self.v + fall
 
 
-class Wave(eo.AbstractMotion):
-    """Grasps swaying about their initial poses (positions and angles)."""
-
-    y0: jax.Array
-    amplitude: jax.Array  # (bodies, 6)
-    omega: float = 4.0
-
-    def __call__(self, t):
-        return self.y0 + self.amplitude * jnp.sin(self.omega * t)
-
-
 def wave(scale=1.0):
+    """Grasps swaying about their initial poses (positions and angles)."""
     amp = np.zeros((3, 6))
     amp[1] = (0.02, 0.01, 0.03, 0.05, 0.04, -0.03)
     amp[2] = (-0.015, 0.02, 0.025, -0.02, 0.03, 0.04)
@@ -55,14 +52,15 @@ def model():
 def driven(model):
     motion = eo.PrescribedMotion(CONTACTS, wave())
     y0 = three_body_state()
-    return eo.simulate(model, y0, jnp.zeros_like(y0), TS, prescribed=motion, **TIGHT)
+    return run_tight(model, y0, jnp.zeros_like(y0), 1.0, prescribed=motion)
 
 
+@pytest.mark.slow  # its own compilation (every coordinate prescribed)
 def test_free_fall_needs_no_reaction(model):
     y0 = three_body_state()
     v = jnp.array([0.3, -0.2, 1.0, 0.0, 0.0, 0.0])
     motion = eo.PrescribedMotion(np.ones((3, 6), bool), Ballistic(y0, v))
-    traj = eo.simulate(model, y0, jnp.zeros_like(y0), TS, prescribed=motion)
+    traj = run_tight(model, y0, jnp.zeros_like(y0), 1.0, prescribed=motion)
     weight = 9.81 * float(jnp.sum(model.bodies.mass))
     assert float(jnp.max(jnp.abs(traj.reaction))) < 1e-12 * weight
     np.testing.assert_allclose(traj.y[-1, :, 2], y0[:, 2] + 1.0 - 0.5 * 9.81)
@@ -77,6 +75,9 @@ def test_prescribed_entries_follow_the_motion_exactly(driven):
     assert float(jnp.max(jnp.abs(driven.reaction[:, 0]))) == 0.0
 
 
+# Its own compilation; test_inverse_dynamics_inverts_the_accelerations checks the
+# inverse dynamics in the fast tests.
+@pytest.mark.slow
 def test_round_trip_forward_inverse_forward(model, driven):
     """Drive the contact bodies with the forces `inverse_dynamics` says they need
     for the prescribed accelerations: the free run reproduces the driven one."""
@@ -118,6 +119,7 @@ def test_energy_balance_includes_reaction_work(driven):
     assert float(jnp.max(jnp.abs(driven.energy_residual()))) < 1e-7 * scale
 
 
+@pytest.mark.slow  # compiles the batched run; test_transforms checks vmap fast
 def test_vmap_over_motion_parameters(model, driven):
     y0 = three_body_state()
     scales = jnp.array([1.0, 0.5])
@@ -127,23 +129,23 @@ def test_vmap_over_motion_parameters(model, driven):
         motion = eqx.tree_at(
             lambda p: p.motion.amplitude, motion, scale * wave().amplitude
         )
-        return eo.simulate(
-            model, y0, jnp.zeros_like(y0), TS, prescribed=motion, throw=False, **TIGHT
+        return run_tight(
+            model, y0, jnp.zeros_like(y0), 1.0, prescribed=motion, throw=False
         ).reaction
 
     batch = jax.vmap(run)(scales)
     np.testing.assert_allclose(batch[0], driven.reaction, rtol=0, atol=1e-9)
-    half = eo.simulate(
+    half = run_tight(
         model,
         y0,
         jnp.zeros_like(y0),
-        TS,
+        1.0,
         prescribed=eo.PrescribedMotion(CONTACTS, wave(0.5)),
-        **TIGHT,
     )
     np.testing.assert_allclose(batch[1], half.reaction, rtol=0, atol=1e-9)
 
 
+@pytest.mark.slow  # reverse mode through a driven run; test_transforms: free runs
 def test_reaction_gradient_matches_finite_differences(model):
     y0 = three_body_state()
     ts = jnp.linspace(0.0, 0.3, 4)
@@ -151,7 +153,9 @@ def test_reaction_gradient_matches_finite_differences(model):
 
     def loss(stiffness):
         m = eqx.tree_at(lambda m: m.stiffness, model, stiffness)
-        traj = eo.simulate(m, y0, jnp.zeros_like(y0), ts, prescribed=motion, **TIGHT)
+        traj = eo.simulate(
+            m, y0, jnp.zeros_like(y0), ts, prescribed=motion, rtol=1e-10, atol=1e-12
+        )
         return jnp.sum(traj.reaction[-1] ** 2)
 
     k = model.stiffness
@@ -176,11 +180,12 @@ def test_spline_motion():
     np.testing.assert_allclose(values[:, 0, 1], 2.0 + 0.5 * t, atol=1e-13)
     # C2: the second derivative is continuous across a knot
     motion = eo.PrescribedMotion(np.ones((1, 6), bool), spline)
+    state = jax.jit(lambda t: motion.state(t))  # one compilation for three times
     knot = float(ts[100])
-    left = motion.state(knot - 1e-9)[2][0, 0]
-    right = motion.state(knot + 1e-9)[2][0, 0]
+    left = state(knot - 1e-9)[2][0, 0]
+    right = state(knot + 1e-9)[2][0, 0]
     assert abs(float(left - right)) < 1e-6
-    np.testing.assert_allclose(motion.state(1.0)[2][0, 0], -9 * np.sin(3.0), rtol=2e-3)
+    np.testing.assert_allclose(state(1.0)[2][0, 0], -9 * np.sin(3.0), rtol=2e-3)
 
 
 @pytest.mark.parametrize(
@@ -240,6 +245,22 @@ def test_empty_prescribed_mask_gives_exactly_the_free_accelerations():
     np.testing.assert_array_equal(yddot, free)
     np.testing.assert_array_equal(damping_c, damping)
     np.testing.assert_array_equal(reaction, 0.0)
+
+
+def test_inverse_dynamics_inverts_the_accelerations():
+    """The forces behind the free accelerations are the applied ones, at a state
+    (`inverse_dynamics`) and along a series of states (`inverse_dynamics_series`)."""
+    model = three_body_model()
+    states = [_random_state(seed) for seed in (3, 4)]
+    y, ydot, applied = (jnp.stack(s) for s in zip(*states))
+    yddot = jnp.stack([eo.accelerations(model, *s)[0] for s in states])
+    # W Y'' + w - G against F: terms of up to ~2e2 N, rounding ~1e-13 N.
+    np.testing.assert_allclose(
+        eo.inverse_dynamics(model, y[0], ydot[0], yddot[0]), applied[0], atol=1e-10
+    )
+    np.testing.assert_allclose(
+        eo.inverse_dynamics_series(model, y, ydot, yddot), applied, atol=1e-10
+    )
 
 
 @pytest.mark.parametrize("seed", [1, 2])

@@ -1,21 +1,212 @@
-"""The README's Python example runs as written."""
+"""The README is executed: every ```python block runs, in order, in one namespace
+(as a reader pasting them into one Python session would), and each block's result
+is checked; the scenario example is the packaged file, and the images and shell
+commands it shows exist."""
 
+import contextlib
 import pathlib
 import re
 
+import jax
 import numpy as np
+import pytest
 
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
+FENCE = re.compile(r"^ *```(\w*)\n(.*?)^ *```", flags=re.S | re.M)
+
+# One marker per python block, in README order: a string only that block contains.
+MARKERS = {
+    "first": "eo.MobileModel([beam, grasp, grasp], grasps)",
+    "gradient": "jax.grad(final_height)",
+    "analysis": "eo.static_equilibrium(model, y0, held)",
+    "study": "mc.run_study(study",
+    "sensitivities": "mc.local_sensitivities(study",
+    "identification": "eo.identify(model, [experiment], where)",
+}
+# The earlier blocks each block uses (the README says which example continues
+# which). Blocks run in README order in one namespace, as in a reader's session;
+# a block no later one needs (the gradient, slow to compile) may be left out.
+NEEDS = {
+    "first": (),
+    "gradient": ("first",),
+    "analysis": ("first",),
+    "study": ("first",),
+    "sensitivities": ("first", "study"),
+    "identification": ("first",),
+}
 
 
-def test_readme_example_runs():
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
-    assert blocks, "README has no python example"
-    namespace = {}
-    exec(compile(blocks[0], "README.md", "exec"), namespace)
-    assert namespace["traj"].y.shape == (101, 3, 6)
-    assert namespace["heights"].shape == (8,)
-    assert namespace["dz_dk"].shape == (2, 6)
+def _fences(text: str) -> list[tuple[str, int, str]]:
+    """(language, line of the first code line (0-based), code) of every fenced
+    block, in order."""
+    return [
+        (m.group(1), text.count("\n", 0, m.start(2)), m.group(2))
+        for m in FENCE.finditer(text)
+    ]
+
+
+def _python_blocks() -> list[tuple[int, str]]:
+    return [
+        (line, code)
+        for lang, line, code in _fences(README.read_text())
+        if lang == "python"
+    ]
+
+
+class _Session:
+    """The README's python blocks, run in README order in one namespace, in a
+    folder of their own (the Monte Carlo example writes a store)."""
+
+    def __init__(self, folder: pathlib.Path):
+        self.folder = folder
+        self.namespace: dict = {"__name__": "readme"}
+        self.done: list[str] = []
+        self.failed: set[str] = set()
+
+    def run(self, name: str) -> dict:
+        """Run block `name` and the blocks it needs that have not run yet."""
+        order = list(MARKERS)
+        blocks = dict(zip(order, _python_blocks(), strict=True))
+        needed = {name, *NEEDS[name]}
+        if needed & self.failed:
+            pytest.fail(f"the README's {sorted(needed & self.failed)} block failed")
+        todo = sorted(needed - set(self.done), key=order.index)
+        with contextlib.chdir(self.folder):
+            for block in todo:
+                later = [b for b in self.done if order.index(b) > order.index(block)]
+                assert not later, f"{block!r} would run after {later}"
+                line, code = blocks[block]
+                # padded so that tracebacks give the README's line numbers
+                source = compile("\n" * line + code, str(README), "exec")
+                try:
+                    exec(source, self.namespace)
+                except BaseException:
+                    self.failed.add(block)
+                    raise
+                self.done.append(block)
+        return self.namespace
+
+
+@pytest.fixture(scope="module")
+def readme(tmp_path_factory):
+    return _Session(tmp_path_factory.mktemp("readme"))
+
+
+def test_every_python_block_is_checked():
+    text = README.read_text()
+    languages = {lang for lang, _, _ in _fences(text)}
+    # an unlabelled fence would hide code from these tests
+    assert languages <= {"python", "bash", "toml"}, languages
+    blocks = [code for _, code in _python_blocks()]
+    owners = [[name for name, m in MARKERS.items() if m in code] for code in blocks]
+    assert owners == [[name] for name in MARKERS], owners
+
+
+def test_first_simulation(readme):
+    ns = readme.run("first")
+    traj = ns["traj"]
+    assert traj.y.shape == (101, 3, 6)
+    assert traj.elastic_wrench().shape == (101, 2, 6)
+    assert int(traj.status) == 0
+    # the energy balance closes to the solver's tolerance (J; weights ~ 25 N)
+    assert abs(float(traj.energy_residual()[-1])) < 1e-4
+
+
+@pytest.mark.slow
+def test_batch_and_gradient(readme):
+    ns = readme.run("gradient")
+    heights, dz_dk, stiffness = ns["heights"], ns["dz_dk"], ns["model"].stiffness
+    assert heights.shape == (8,) and np.all(np.isfinite(heights))
+    assert dz_dk.shape == stiffness.shape == (2, 6)
+    # the gradient agrees with the batch: d height / d scale at scale 1 against
+    # the secant between the two scales around 1
+    scale = np.linspace(0.5, 2, 8)
+    secant = (heights[3] - heights[2]) / (scale[3] - scale[2])
+    directional = np.sum(np.asarray(dz_dk) * np.asarray(stiffness))
+    np.testing.assert_allclose(directional, secant, rtol=0.2)
+
+
+def test_analysis(readme):
+    ns = readme.run("analysis")
+    eq, driven, y0 = ns["eq"], ns["driven"], ns["y0"]
+    # the grasps stay where they were; the beam sags, hanging in its links
+    np.testing.assert_allclose(eq.y[1:], y0[1:])
+    assert 0.0 < float(y0[0, 2] - eq.y[0, 2]) < 0.2
+    assert driven.reaction.shape == (51, 3, 6)
+    assert np.all(np.asarray(driven.reaction[:, 0]) == 0)  # the object is free
+    # the drive does work, and the energy balance still closes
+    work = float(np.max(np.abs(driven.work)))
+    assert work > 0.1  # J: the grasps raise about 2.6 kg by some 7 cm
+    assert abs(float(driven.energy_residual()[-1])) < 1e-6 * work
+    split = ns["split"]
+    np.testing.assert_allclose(split.motion + split.internal, ns["wrenches"])
+    frequencies = np.asarray(ns["modes"].frequencies)
+    assert frequencies.shape == (6,)  # the beam's 6 coordinates are free
+    assert np.all(frequencies > 0) and np.all(np.diff(frequencies) >= 0)
+
+
+def test_monte_carlo_study(readme):
+    ns = readme.run("study")
+    mc, ds, study = ns["mc"], ns["ds"], ns["study"]
+    n = study.n_samples
+    assert mc.summary(ds)["n_succeeded"] == n
+    assert ds["pose"].shape == (n, 21, 6)
+    assert ds["peak_force"].shape == (n, 2)
+    # Latin hypercube: each of the n strata of each entry is hit once
+    load = np.asarray(ds["load"])[:, :, 2] / np.asarray(ns["lift"])[:, 2]
+    strata = np.sort(np.floor((load - 0.8) / 0.4 * n), axis=0)
+    np.testing.assert_array_equal(strata, np.arange(n)[:, None] * np.ones((1, 2)))
+    p30 = ns["p30"]
+    p = np.asarray(p30["probability"])
+    assert np.all((p30["lower"] <= p) & (p <= p30["upper"]))
+    np.testing.assert_allclose(p, np.mean(np.asarray(ds["peak_force"]) > 30.0, 0))
+    # the store resumes: a second run simulates nothing and returns the same data
+    again = mc.run_study(study, readme.folder / "study_dir", progress=False)
+    np.testing.assert_array_equal(again["peak_force"], ds["peak_force"])
+    assert (readme.folder / "study_dir" / "manifest.json").is_file()
+
+
+@pytest.mark.slow
+def test_monte_carlo_sensitivities(readme):
+    ns = readme.run("sensitivities")
+    ranking = ns["ranking"]
+    share = np.asarray(ranking)
+    assert np.all(np.diff(share) <= 0)
+    np.testing.assert_allclose(share.sum(), 1.0)
+    # the peak force of grasp 1 is set by the vertical load on grasp 1
+    assert str(ranking["parameter"][0].values) == "load[0, 2]"
+    linear, sampled = (
+        ranking.attrs[k] for k in ("linearized_variance", "sample_variance")
+    )
+    assert 0.5 < linear / sampled < 2.0
+
+
+@pytest.mark.slow
+def test_identification(readme):
+    ns = readme.run("identification")
+    result, truth = ns["result"], ns["truth"]
+    assert result.converged, result.reason
+    leaves = lambda m: np.concatenate(  # noqa: E731
+        [np.ravel(x) for x in jax.tree.leaves(ns["where"](m))]
+    )
+    exact = leaves(truth)
+    stderr = np.concatenate([np.ravel(s) for s in jax.tree.leaves(result.stderr)])
+    ok = result.identifiable
+    # the README's numbers: x and z of each link's stiffness and damping
+    excited = np.zeros((2, 2, 6), bool)
+    excited[:, :, [0, 2]] = True
+    np.testing.assert_array_equal(ok, excited.ravel())
+    error = np.abs(result.estimate - exact)
+    assert np.all(error[ok] < 2.2 * stderr[ok])
+    relative = (error / exact).reshape(2, 2, 6)[:, :, [0, 2]]
+    assert np.all(relative[0] < 0.003) and np.all(relative[1] < 0.17)
+    assert np.all(np.isinf(stderr[~ok]))
+    assert "NOT IDENTIFIABLE" in result.report()
+    # the flagged entries keep the fit's start (`initial`), here the equation-error
+    # start, far from the model's values (`start`) for some of them
+    np.testing.assert_allclose(result.estimate[~ok], result.initial[~ok], rtol=1e-12)
+    assert np.max(result.initial[~ok] / result.start[~ok]) > 10
+    np.testing.assert_allclose(leaves(result.model), result.estimate)
 
 
 def test_readme_scenario_example_is_the_packaged_default():
@@ -24,7 +215,7 @@ def test_readme_scenario_example_is_the_packaged_default():
     from elasticoop._config import build_scenario
 
     text = README.read_text()
-    blocks = re.findall(r"```toml\n(.*?)```", text, flags=re.S)
+    blocks = [code for lang, _, code in _fences(text) if lang == "toml"]
     assert blocks, "README has no scenario example"
     packaged = README.parent / "elasticoop" / "scenarios" / "beam_lift.toml"
     assert blocks[0] == packaged.read_text()
@@ -38,18 +229,58 @@ def test_readme_images_and_commands_exist():
     text = README.read_text()
     images = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
     assert images and all((README.parent / image).is_file() for image in images)
-    shell = "".join(re.findall(r"```bash\n(.*?)```", text, flags=re.S))
-    commands = set(re.findall(r"^elasticoop (\w+)", shell, flags=re.M))
+    links = re.findall(r"\]\(((?!https?:)[^)]+)\)", text)
+    assert all((README.parent / link).exists() for link in links), links
+    shell = "".join(code for lang, _, code in _fences(text) if lang == "bash")
+    commands = set(re.findall(r"^ *elasticoop (\w+)", shell, flags=re.M))
     known = set(build_parser()._subparsers._group_actions[0].choices)
-    assert commands and commands <= known
+    assert commands and commands <= known, commands - known
+    # and those in the text, such as `elasticoop check FILE`
+    inline = set(re.findall(r"`elasticoop (\w+)", text))
+    assert inline <= known, inline - known
 
 
-def test_readme_analysis_example_runs():
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
-    (block,) = [b for b in blocks if "static_equilibrium" in b]
-    namespace = {}
-    exec(compile(block, "README.md", "exec"), namespace)
-    assert namespace["traj"].reaction.shape == (51, 3, 6)
-    split = namespace["split"]
-    np.testing.assert_allclose(split.motion + split.internal, namespace["wrenches"])
-    assert np.all(np.diff(namespace["modes"].frequencies) >= 0)
+def test_readme_set_up_commands():
+    """CI takes the test command from the first line that mentions pytest."""
+    text = README.read_text()
+    lang, line, code = _fences(text)[0]
+    assert lang == "bash" and line == 3
+    first, second = code.splitlines()
+    assert "pip install . && python -m elasticoop" in first
+    pytest_line = next(x for x in text.splitlines() if "pytest" in x)
+    assert pytest_line == second and second.endswith("pytest -q")
+
+
+def test_readme_layout_matches_the_package_and_its_layers():
+    import tomllib
+
+    text = README.read_text()
+    layout = text[text.index("## Layout") :]
+    package = README.parent / "elasticoop"
+    entries = {
+        p.name + "/" if p.is_dir() else p.name
+        for p in package.iterdir()
+        if not p.name.startswith("__") and (p.is_dir() or p.suffix == ".py")
+    }
+    assert {e for e in entries if f"`{e}`" not in layout} == set()
+    named = set(re.findall(r"`(\w+\.py|\w+/)`", layout))
+    exists = {p.name + "/" if p.is_dir() else p.name for p in package.rglob("*")}
+    exists |= {p.name + "/" for p in README.parent.iterdir() if p.is_dir()}
+    assert named <= exists, named - exists
+    # the layers are described bottom up, in the order of the import contract
+    project = tomllib.loads((README.parent / "pyproject.toml").read_text())
+    (contract,) = [
+        c for c in project["tool"]["importlinter"]["contracts"] if c["type"] == "layers"
+    ]
+
+    def first_mention(module: str) -> int:
+        found = [layout.find(f"`{module}{end}`") for end in (".py", "/")]
+        assert max(found) >= 0, f"{module} is not in the README's layout"
+        return min(i for i in found if i >= 0)
+
+    spans = [
+        [first_mention(m.strip()) for m in layer.split(":")]
+        for layer in reversed(contract["layers"])
+    ]
+    for lower, upper in zip(spans, spans[1:]):
+        assert max(lower) < min(upper), contract["layers"]
