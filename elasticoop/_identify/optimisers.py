@@ -271,6 +271,13 @@ def levenberg_marquardt(
     return trace
 
 
+# optax's updates mix integer step counts with floats (e.g. Adam's bias correction
+# `decay**count`): trace them under standard dtype promotion, so that a user (or a
+# test suite) running with `jax_numpy_dtype_promotion="strict"` can still fit.
+def _optax_promotion():
+    return jax.numpy_dtype_promotion("standard")
+
+
 @eqx.filter_jit
 def _value_and_grad(u, problem):
     return jax.value_and_grad(loss)(u, problem)
@@ -285,16 +292,18 @@ def _linesearch_step(optimizer, u, state, problem):
         return loss(v, problem)
 
     value, grad = optax.value_and_grad_from_state(fun)(u, state=state)
-    updates, state = optimizer.update(
-        grad, state, u, value=value, grad=grad, value_fn=fun
-    )
+    with _optax_promotion():
+        updates, state = optimizer.update(
+            grad, state, u, value=value, grad=grad, value_fn=fun
+        )
     steps = optax.tree.get(state, "num_linesearch_steps")
     return optax.apply_updates(u, updates), state, value, grad, steps
 
 
 @eqx.filter_jit
 def _plain_update(optimizer, u, state, grad):
-    updates, state = optimizer.update(grad, state, u)
+    with _optax_promotion():
+        updates, state = optimizer.update(grad, state, u)
     return updates, state
 
 
