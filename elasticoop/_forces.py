@@ -1,6 +1,7 @@
 """Contact forces $F_c$ on the contact bodies, and wrench -> generalized force."""
 
 import abc
+import warnings
 from collections.abc import Callable
 
 import diffrax
@@ -49,29 +50,85 @@ class ConstantForce(AbstractForce):
         return self.F
 
 
+# A sample is a kink of the linear interpolant when, in some component, the slope
+# changes there by more than KINK_RTOL times that component's largest slope; at most
+# MAX_JUMP_TIMES jump times (the largest kinks, and the first and last sample) are
+# handed to the step-size controller.
+KINK_RTOL = 1e-2
+MAX_JUMP_TIMES = 10_000
+
+
+def kink_times(
+    ts: Float[np.ndarray, " times"], F: Float[np.ndarray, "times ..."]
+) -> Float[np.ndarray, " jumps"]:
+    """The times at which the linear interpolant of samples `F` at times `ts` has a
+    kink worth stepping onto: the first and last sample, and every sample $k$ where
+    a component's slope $s_k = (F_{k+1} - F_k)/(t_{k+1} - t_k)$ changes by
+    $|s_k - s_{k-1}| >$ `KINK_RTOL` $\\max_j |s_j|$ (that component's largest
+    slope). Densely sampled smooth data has no such kinks; collinear samples neither.
+    When more than `MAX_JUMP_TIMES` remain, the largest relative kinks are kept
+    (with a warning); the step-size controller's error control resolves the rest."""
+    n = ts.shape[0]
+    values = F.reshape(n, -1)
+    dt = np.diff(ts)
+    relative = np.zeros(max(n - 2, 0))
+    for column in values.T:  # one component at a time: memory O(samples)
+        slopes = np.diff(column) / dt
+        largest = np.max(np.abs(slopes)) if slopes.size else 0.0
+        if largest > 0:
+            change = np.abs(np.diff(slopes)) / largest
+            np.maximum(relative, change, out=relative)
+    kinks = np.flatnonzero(relative > KINK_RTOL)
+    room = MAX_JUMP_TIMES - 2
+    if kinks.size > room:
+        warnings.warn(
+            f"SampledForce: {kinks.size} of the {n} samples are kinks of the "
+            f"linear interpolant (slope changes over {KINK_RTOL:g} of the largest "
+            f"slope); only the {room} largest are handed to the step-size "
+            f"controller as jump times, its error control resolves the others. "
+            f"Smooth or resample the samples for a faster run.",
+            stacklevel=2,
+        )
+        kinks = np.sort(kinks[np.argpartition(relative[kinks], -room)[-room:]])
+    return ts[np.concatenate([[0], kinks + 1, [n - 1]])]
+
+
 class SampledForce(AbstractForce):
     """Force samples `F` of shape `(len(ts), m, 6)` (or `(len(ts), m + 1, 6)`) at
-    times `ts`, interpolated linearly (`diffrax.LinearInterpolation`). The sample
-    times are passed to the step-size controller as jump times so that an adaptive
-    solver steps onto the kinks. Simulated times must lie within `ts`."""
+    times `ts`, interpolated linearly (`diffrax.LinearInterpolation`). Simulated
+    times must lie within `ts`.
+
+    `jump_ts` are the times passed to the step-size controller as jump times, so
+    that an adaptive solver steps onto the kinks of the interpolant. By default
+    (`jump_ts=None`) they are the samples where the slope changes markedly
+    (`kink_times`), not every sample: densely sampled smooth data costs no more
+    steps than its shape needs. A `SampledForce` built from traced values (inside
+    `jit`) hands every sample time. `jump_ts` belong to the samples given here: a
+    `Study` or `identify` that replaces `F` keeps them (they only guide the step
+    size; accuracy comes from the error control)."""
 
     ts: Times
     F: Float[Array, "times rows 6"]
+    jump_ts: Float[Array, " jumps"]
 
-    def __init__(self, ts: ArrayInput, F: ArrayInput):
+    def __init__(
+        self, ts: ArrayInput, F: ArrayInput, jump_ts: ArrayInput | None = None
+    ):
         ts = check_times(ts, "SampledForce.ts")
+        F = as_float_array(F, "SampledForce.F", (ts.shape[0], None, 6))
         self.ts = jnp.asarray(ts)
-        self.F = jnp.asarray(
-            as_float_array(F, "SampledForce.F", (ts.shape[0], None, 6))
-        )
+        self.F = jnp.asarray(F)
+        if jump_ts is not None:
+            self.jump_ts = jnp.sort(
+                jnp.asarray(as_float_array(jump_ts, "SampledForce.jump_ts", (None,)))
+            )
+        elif is_concrete(ts, F):
+            self.jump_ts = jnp.asarray(kink_times(np.asarray(ts), np.asarray(F)))
+        else:
+            self.jump_ts = self.ts
 
     def __call__(self, t: TimeLike, y: State | None, ydot: State | None) -> Forces:
         return diffrax.LinearInterpolation(ts=self.ts, ys=self.F).evaluate(t)
-
-    @property
-    def jump_ts(self) -> Times:
-        """The sample times: the kinks of the interpolant."""
-        return self.ts
 
 
 class FeedbackForce(AbstractForce):
@@ -85,7 +142,7 @@ class FeedbackForce(AbstractForce):
 
 def jump_times(force: AbstractForce | None) -> Times | None:
     """Times at which `force` has kinks, handed to the step-size controller
-    (the samples of a `SampledForce`; none otherwise)."""
+    (`SampledForce.jump_ts`; none otherwise)."""
     return force.jump_ts if isinstance(force, SampledForce) else None
 
 

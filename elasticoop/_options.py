@@ -22,15 +22,33 @@ SOLVERS = {
 GIMBAL_TOL = 1e-3  # |sin theta| (ZXZ) or |cos pitch| (RPY)
 LINK_TOL = 1e-3  # |r_i - r_j| relative to the rest length rho_0
 
+# The largest step budget: the number of steps taken is reported as a 32-bit
+# integer (`Trajectory.n_steps`).
+MAX_STEPS_LIMIT = 2**31 - 1
+
 
 def _positive(value, name: str, owner: str) -> float:
     try:
         number = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         number = math.nan
     if not (math.isfinite(number) and number > 0):
-        raise ValueError(f"{owner}.{name} must be a positive number, got {value!r}")
+        shown = (
+            _show_integer(value)
+            if isinstance(value, numbers.Integral) and not isinstance(value, bool)
+            else repr(value)
+        )
+        raise ValueError(f"{owner}.{name} must be a positive number, got {shown}")
     return number
+
+
+def _show_integer(value: numbers.Integral) -> str:
+    """An integer as written, or its sign and number of digits when it is long."""
+    text = str(int(value))
+    digits = len(text.lstrip("-"))
+    if digits <= 24:
+        return text
+    return f"{'a negative' if value < 0 else 'an'} integer of {digits} digits"
 
 
 class SimulationOptions(eqx.Module):
@@ -42,7 +60,8 @@ class SimulationOptions(eqx.Module):
     - `solver`: a diffrax solver, or its name in `SOLVERS` (`"tsit5"`, the default,
       `"dopri5"`, `"dopri8"`, `"bosh3"`, `"heun"`, `"kvaerno3"`, `"kvaerno5"`).
     - `rtol`, `atol`: tolerances of the adaptive step-size controller (> 0).
-    - `max_steps`: the most solver steps a run may take (>= 1).
+    - `max_steps`: the most solver steps a run may take, an integer from 1 to
+      `MAX_STEPS_LIMIT` ($2^{31} - 1$).
     - `gimbal_tol`: a run stops when a body's $|\\sin\\theta|$ (ZXZ) or
       $|\\cos(\\text{pitch})|$ (RPY) falls below this.
     - `link_tol`: a run stops when a link of rest length $\\rho_0 > 0$ shrinks to
@@ -73,13 +92,14 @@ class SimulationOptions(eqx.Module):
         for name in ("rtol", "atol", "gimbal_tol", "link_tol"):
             _positive(getattr(self, name), name, self.owner)
         steps = self.max_steps
-        if (
-            isinstance(steps, bool)
-            or not isinstance(steps, numbers.Integral)
-            or steps < 1
-        ):
+        if isinstance(steps, bool) or not isinstance(steps, numbers.Integral):
             raise ValueError(
                 f"{self.owner}.max_steps must be a positive integer, got {steps!r}"
+            )
+        if not 1 <= steps <= MAX_STEPS_LIMIT:
+            raise ValueError(
+                f"{self.owner}.max_steps must be a positive integer of at most "
+                f"{MAX_STEPS_LIMIT}, got {_show_integer(steps)}"
             )
 
     @property

@@ -5,6 +5,8 @@ import sys
 import numpy as np
 
 from .._config import ScenarioError
+from .._config.limits import MAX_OUTPUT_BYTES, format_bytes, output_bytes
+from .._forces import SampledForce
 from ._common import EXIT_OK, EXIT_USAGE, common_options, load, say
 
 NAME = "check"
@@ -40,11 +42,27 @@ def scenario_lines(scenario) -> list[str]:
     )
     ts = np.asarray(scenario.ts)
     forces = type(scenario.forces).__name__ if scenario.forces is not None else "none"
+    if isinstance(scenario.forces, SampledForce):
+        samples = scenario.forces.ts
+        forces += (
+            f", {samples.size} samples from {float(samples[0]):g} to "
+            f"{float(samples[-1]):g} s; {scenario.forces.jump_ts.size} of them "
+            f"handed to the solver as jump times (the kinks)"
+        )
+    results = output_bytes(
+        ts.size,
+        model.n_bodies,
+        len(scenario.connection_names),
+        scenario.prescribed is not None,
+    )
     lines = [
         f"  model: {kind} ({model.convention}), {model.n_bodies} bodies "
         f"({', '.join(scenario.names)}){links}, gravity {float(model.gravity)} m/s^2",
         f"  time: {ts[0]:g} to {ts[-1]:g} s, {ts.size} output samples; solver "
-        f"{scenario.solver} (rtol {scenario.rtol:g}, atol {scenario.atol:g})",
+        f"{scenario.solver} (rtol {scenario.rtol:g}, atol {scenario.atol:g}, "
+        f"max_steps {scenario.max_steps})",
+        f"  results: about {format_bytes(results)} "
+        f"(limit {format_bytes(MAX_OUTPUT_BYTES)})",
         f"  forces: {forces}",
     ]
     if scenario.prescribed is not None:

@@ -19,7 +19,22 @@ from .._options import GIMBAL_TOL
 from .._rotations import get_rotation
 from .._scenario import PrescribedSpec, Scenario
 from .data_files import read_matrix, read_series
-from .problems import Problem, Problems, ScenarioError, unknown_key_message
+from .limits import (
+    MAX_OUTPUT_BYTES,
+    MAX_SAMPLES_BYTES,
+    MAX_SCENARIO_FILE_BYTES,
+    format_bytes,
+    output_bytes,
+    output_numbers_per_sample,
+)
+from .problems import (
+    Problem,
+    Problems,
+    ScenarioError,
+    message_of,
+    show_value,
+    unknown_key_message,
+)
 from .schema import REQUIRED, SECTIONS, TOP_LEVEL_KEYS, Name, ScenarioInfo, SolverTable
 
 # Generalized force components in a forces CSV: world force [N], then the
@@ -46,13 +61,28 @@ def load_scenario(path) -> Scenario:
     **Returns:** a `Scenario`.
     """
     path = pathlib.Path(path)
+
+    def refuse(message: str) -> ScenarioError:
+        return ScenarioError(str(path), [Problem("(file)", "", message)])
+
+    if path.is_dir():
+        raise refuse("a folder, not a scenario file")
     if not path.is_file():
-        raise ScenarioError(str(path), [Problem("(file)", "", "no such scenario file")])
+        raise refuse("no such scenario file")
+    size = path.stat().st_size
+    if size > MAX_SCENARIO_FILE_BYTES:
+        raise refuse(
+            f"the file holds {format_bytes(size)}, over the limit of "
+            f"{format_bytes(MAX_SCENARIO_FILE_BYTES)} for a scenario file (put large "
+            f"matrices and time series in data files)"
+        )
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise ScenarioError(
-            str(path), [Problem("(file)", "", f"not valid TOML: {err}")]
+        raise refuse(f"not valid TOML: {err}") from None
+    except RecursionError:
+        raise refuse(
+            "not a usable TOML file: arrays or tables are nested too deeply to read"
         ) from None
     return build_scenario(raw, source=str(path), base_dir=path.parent)
 
@@ -92,7 +122,7 @@ class _Builder:
         except ValidationError as err:
             self.info = None
             for e in err.errors():
-                self.add("(top level)", ".".join(map(str, e["loc"])), e["msg"])
+                self.add("(top level)", ".".join(map(str, e["loc"])), message_of(e))
         for name, (_, shape) in SECTIONS.items():
             if name not in self.raw:
                 if name in REQUIRED:
@@ -203,7 +233,32 @@ class _Builder:
                 f"({time.start})",
             )
             return None
+        if not self.output_fits(time.samples):
+            return None
         return np.linspace(time.start, time.stop, time.samples)
+
+    def output_fits(self, samples: int) -> bool:
+        """Whether the results of `samples` output times fit `MAX_OUTPUT_BYTES`
+        (with the bodies and connections the file names); adds the problem if not."""
+        n_bodies = len(self.names) if self.names else 1
+        connections = self.raw.get("connections")
+        n_connections = len(connections) if isinstance(connections, list) else 0
+        prescribed = "prescribed" in self.raw
+        size = output_bytes(samples, n_bodies, n_connections, prescribed)
+        if size <= MAX_OUTPUT_BYTES:
+            return True
+        per_sample = output_numbers_per_sample(n_bodies, n_connections, prescribed)
+        most = MAX_OUTPUT_BYTES // (8 * per_sample)
+        self.add(
+            "[time]",
+            "samples",
+            f"the results would need {format_bytes(size)} for samples = "
+            f"{show_value(samples)} ({per_sample} float64 numbers per sample for "
+            f"{n_bodies} bod{'y' if n_bodies == 1 else 'ies'} and {n_connections} "
+            f"connection{'' if n_connections == 1 else 's'}), over the limit of "
+            f"{format_bytes(MAX_OUTPUT_BYTES)}; use at most {most} samples",
+        )
+        return False
 
     def matrix(self, key, value):
         if isinstance(value, str):
@@ -299,6 +354,16 @@ class _Builder:
             times, columns = read_series(self.base_dir, name)
         except ValueError as err:
             self.add(table, key, str(err))
+            return None
+        size = len(times) * len(self.names) * 6 * 8
+        if size > MAX_SAMPLES_BYTES:
+            self.add(
+                table,
+                key,
+                f"file '{name}' has {len(times)} rows: as (rows, {len(self.names)} "
+                f"bodies, 6) samples they need {format_bytes(size)}, over the limit "
+                f"of {format_bytes(MAX_SAMPLES_BYTES)}; resample the file",
+            )
             return None
         parsed, ok = {}, True
         for column, values in columns.items():

@@ -1,12 +1,16 @@
 """Data files a scenario refers to: matrices (.npy, .csv) and CSV time series.
 
 Paths are relative to the scenario file's folder. Every reader raises `ValueError`
-with a message meant to follow "table [...], key '...': ".
+with a message meant to follow "table [...], key '...': ". A file larger than
+`MAX_DATA_FILE_BYTES` is refused before it is read.
 """
 
 import pathlib
+import warnings
 
 import numpy as np
+
+from .limits import MAX_DATA_FILE_BYTES, format_bytes
 
 TIME_COLUMNS = ("t", "time")
 
@@ -16,31 +20,106 @@ def resolve(base_dir: pathlib.Path, name: str) -> pathlib.Path:
     return path if path.is_absolute() else base_dir / path
 
 
-def read_matrix(base_dir: pathlib.Path, name: str) -> np.ndarray:
-    """A 2-D float64 array from a .npy file or a comma-separated .csv without header."""
+def existing_file(base_dir: pathlib.Path, name: str) -> pathlib.Path:
+    """The path of data file `name`: it must be a file (not a folder) of at most
+    `MAX_DATA_FILE_BYTES`."""
     path = resolve(base_dir, name)
+    if path.is_dir():
+        raise ValueError(f"'{name}' is a folder, not a data file (at {path})")
     if not path.is_file():
         raise ValueError(f"file '{name}' not found (looked for {path})")
+    size = path.stat().st_size
+    if size > MAX_DATA_FILE_BYTES:
+        raise ValueError(
+            f"file '{name}' holds {format_bytes(size)}, over the limit of "
+            f"{format_bytes(MAX_DATA_FILE_BYTES)} for a data file"
+        )
+    if size == 0:
+        raise ValueError(f"file '{name}' is empty")
+    return path
+
+
+def _read_npy(path: pathlib.Path, name: str) -> np.ndarray:
+    """A numeric array from a .npy file, its header checked before the data is read
+    (a file without the NumPy header, or of Python objects, is refused)."""
+    fmt = np.lib.format
+    with open(path, "rb") as file:
+        try:
+            version = fmt.read_magic(file)
+        except ValueError:
+            raise ValueError(
+                f"file '{name}' is not a .npy file (it does not start with the NumPy "
+                f"format's header)"
+            ) from None
+        if version not in ((1, 0), (2, 0)):  # 3.0: structured (named) fields only
+            raise ValueError(
+                f"file '{name}' is a .npy file of format version "
+                f"{version[0]}.{version[1]}, which holds structured data, not a "
+                f"matrix of numbers"
+            )
+        if version == (1, 0):
+            read_header = fmt.read_array_header_1_0
+        else:
+            read_header = fmt.read_array_header_2_0
+        try:
+            shape, _, dtype = read_header(file)
+        except ValueError as err:
+            raise ValueError(
+                f"file '{name}' has a damaged .npy header ({err})"
+            ) from None
+    if dtype.hasobject:
+        raise ValueError(
+            f"file '{name}' holds Python objects (dtype {dtype}), not numbers"
+        )
+    if not (np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)):
+        what = "complex numbers" if np.issubdtype(dtype, np.complexfloating) else ""
+        raise ValueError(
+            f"file '{name}' holds {what or f'entries of dtype {dtype}'}, not real "
+            f"numbers"
+        )
+    if len(shape) != 2:
+        raise ValueError(f"file '{name}' holds an array of shape {shape}, not 2-D")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as err:
+        raise ValueError(
+            f"file '{name}' is damaged or truncated: its header announces an array "
+            f"of shape {shape} ({err})"
+        ) from None
+
+
+def _read_csv_matrix(path: pathlib.Path, name: str) -> np.ndarray:
+    """A 2-D array from a comma-separated file of numbers without header."""
+    try:
+        with warnings.catch_warnings():
+            # an empty file is reported below, not warned about
+            warnings.simplefilter("ignore", UserWarning)
+            arr = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+    except UnicodeDecodeError:
+        raise ValueError(f"file '{name}' is not a text file (not UTF-8)") from None
+    except ValueError as err:
+        raise ValueError(f"file '{name}' could not be read as numbers: {err}") from None
+    if arr.size == 0:
+        raise ValueError(f"file '{name}' holds no numbers")
+    return arr
+
+
+def read_matrix(base_dir: pathlib.Path, name: str) -> np.ndarray:
+    """A 2-D float64 array from a .npy file or a comma-separated .csv without header."""
+    path = existing_file(base_dir, name)
     suffix = path.suffix.lower()
+    if suffix not in (".npy", ".csv", ".txt"):
+        raise ValueError(f"file '{name}': use a .npy or .csv file")
     try:
         if suffix == ".npy":
-            arr = np.load(path, allow_pickle=False)
-        elif suffix in (".csv", ".txt"):
-            arr = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+            arr = _read_npy(path, name)
         else:
-            raise ValueError(f"file '{name}': use a .npy or .csv file")
+            arr = _read_csv_matrix(path, name)
     except OSError as err:
         raise ValueError(f"file '{name}' could not be read: {err}") from None
-    except ValueError as err:
-        if str(err).startswith("file"):
-            raise
-        raise ValueError(f"file '{name}' could not be read as numbers: {err}") from None
     if arr.ndim != 2:
         raise ValueError(f"file '{name}' holds an array of shape {arr.shape}, not 2-D")
-    try:
-        arr = arr.astype(np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"file '{name}' does not hold numbers") from None
+    arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"file '{name}' holds NaN or infinite entries")
     return arr
@@ -54,13 +133,13 @@ def read_series(base_dir: pathlib.Path, name: str):
     """
     import pandas as pd
 
-    path = resolve(base_dir, name)
-    if not path.is_file():
-        raise ValueError(f"file '{name}' not found (looked for {path})")
+    path = existing_file(base_dir, name)
     try:
         frame = pd.read_csv(path, comment="#", skipinitialspace=True)
     except OSError as err:
         raise ValueError(f"file '{name}' could not be read: {err}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"file '{name}' is not a text file (not UTF-8)") from None
     except (ValueError, pd.errors.ParserError) as err:
         message = str(err).strip().splitlines()[0] if str(err).strip() else "empty"
         raise ValueError(f"file '{name}' is not a readable CSV ({message})") from None
@@ -72,6 +151,11 @@ def read_series(base_dir: pathlib.Path, name: str):
         )
     if len(set(columns)) != len(columns):
         raise ValueError(f"file '{name}' has repeated column names")
+    if len(frame) < 2:
+        rows = "no rows of samples, only a header" if len(frame) == 0 else "1 row"
+        raise ValueError(
+            f"file '{name}' has {rows}: it needs at least 2 rows of samples"
+        )
     bad = [
         c
         for c, col in zip(columns, frame.columns)
@@ -80,8 +164,6 @@ def read_series(base_dir: pathlib.Path, name: str):
     if bad:
         raise ValueError(f"file '{name}': column '{bad[0]}' holds non-numbers")
     values = frame.to_numpy(dtype=np.float64)
-    if values.shape[0] < 2:
-        raise ValueError(f"file '{name}' needs at least 2 rows of samples")
     if not np.all(np.isfinite(values)):
         row = int(np.argwhere(~np.isfinite(values))[0, 0])
         raise ValueError(

@@ -51,23 +51,38 @@ def unknown_key_message(key, allowed=None) -> str:
     return "unknown key" + (f" (did you mean '{close[0]}'?)" if close else "")
 
 
-def _show(value) -> str:
+def show_value(value) -> str:
+    """A value for a message, kept short: a long integer by its number of digits, a
+    large table or array by its type."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        digits = len(str(abs(value)))
+        if digits > 24:
+            return f"{'a negative' if value < 0 else 'an'} integer of {digits} digits"
+        return repr(value)
     if isinstance(value, dict | list) and len(str(value)) > 60:
         return type(value).__name__
     return repr(value)
 
 
-def _message(err: dict) -> str:
+def message_of(err: dict) -> str:
+    """The message of one pydantic error, meant to follow "table [...], key ...: "."""
     kind = err["type"]
+    value = err.get("input")
     if kind == "missing":
         return "missing required key"
     if kind == "extra_forbidden":
         return unknown_key_message(err["loc"][-1] if err["loc"] else "")
+    if kind == "float_type" and isinstance(value, int) and not isinstance(value, bool):
+        # an integer beyond the range of float64
+        return (
+            f"number too large: {show_value(value)} lies beyond the float64 range "
+            f"(about ±1.8e308)"
+        )
     msg = err["msg"]
     if msg.startswith("Value error, "):
         return msg[len("Value error, ") :]
     msg = msg.replace(" after validation", "")
-    return f"{msg[0].lower()}{msg[1:]} (got {_show(err.get('input'))})"
+    return f"{msg[0].lower()}{msg[1:]} (got {show_value(value)})"
 
 
 def locate(
@@ -123,7 +138,7 @@ class Problems:
     def add_validation_error(self, section, shape, raw, error, prefix=()) -> None:
         for err in error.errors():
             table, key = locate(section, shape, raw, (*prefix, *err["loc"]))
-            self.add(table, key, _message(err))
+            self.add(table, key, message_of(err))
 
     def raise_if_any(self) -> None:
         if self.items:

@@ -17,7 +17,7 @@ from pydantic import (
     model_validator,
 )
 
-from .._options import SOLVERS as SOLVER_CLASSES
+from .._options import MAX_STEPS_LIMIT, SOLVERS as SOLVER_CLASSES
 
 Number = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -200,7 +200,9 @@ class ForcesTable(Table):
 
 
 class TimeTable(Table):
-    """`[time]`: time span [s] and the number of evenly spaced output samples."""
+    """`[time]`: time span [s] and the number of evenly spaced output samples (at
+    least 2; the results they make must fit `limits.MAX_OUTPUT_BYTES`, checked when
+    the scenario is built)."""
 
     start: Number = 0.0
     stop: Number
@@ -208,12 +210,13 @@ class TimeTable(Table):
 
 
 class SolverTable(Table):
-    """`[solver]`: diffrax solver by name and the step-size controller's tolerances."""
+    """`[solver]`: diffrax solver by name, the step-size controller's tolerances and
+    the step budget (an integer from 1 to `MAX_STEPS_LIMIT`)."""
 
     name: Literal[SOLVERS] = "tsit5"  # type: ignore[valid-type]  # the solver names
     rtol: Positive = 1e-8
     atol: Positive = 1e-10
-    max_steps: Annotated[int, Field(ge=1)] = 100_000
+    max_steps: Annotated[int, Field(ge=1, le=MAX_STEPS_LIMIT)] = 100_000
 
 
 class MotionCsv(Table):

@@ -16,24 +16,31 @@ PSD_RTOL = 1e-9
 
 
 def check_symmetric_psd(matrix, name: str):
-    """Validate a symmetric positive semidefinite matrix (works traced or not)."""
+    """Validate a symmetric positive semidefinite matrix (works traced or not):
+    $\\max|M - M^T| \\le$ `SYMMETRY_RTOL` $\\max|M|$ and smallest eigenvalue of
+    $(M + M^T)/2$ $\\ge$ -`PSD_RTOL` $\\max|M|$. A concrete matrix that fails is
+    reported with the offending value and the bound."""
     np_ = xp(matrix)
     scale = np_.maximum(np_.max(np_.abs(matrix)), 1e-300)
     asym = np_.max(np_.abs(matrix - matrix.T))
-    matrix = require(
-        matrix,
-        asym <= SYMMETRY_RTOL * scale,
-        f"{name} must be symmetric; largest |{name} - {name}^T| is",
-        asym,
-    )
+    symmetric = asym <= SYMMETRY_RTOL * scale
+    if is_concrete(symmetric) and not bool(symmetric):
+        raise ValueError(
+            f"{name} must be symmetric, but its largest entry of |{name} - {name}^T| "
+            f"is {float(asym):.6g} (at most {SYMMETRY_RTOL:g} max|{name}| = "
+            f"{SYMMETRY_RTOL * float(scale):.3g} allowed)"
+        )
+    matrix = require(matrix, symmetric, f"{name} must be symmetric")
     eig = np_.linalg.eigvalsh(0.5 * (matrix + matrix.T))
     low = np_.min(eig) if eig.size else np_.zeros(())
-    return require(
-        matrix,
-        low >= -PSD_RTOL * scale,
-        f"{name} must be positive semidefinite; its smallest eigenvalue is",
-        low,
-    )
+    semidefinite = low >= -PSD_RTOL * scale
+    if is_concrete(semidefinite) and not bool(semidefinite):
+        raise ValueError(
+            f"{name} must be positive semidefinite, but its smallest eigenvalue is "
+            f"{float(low):.6g} (at least -{PSD_RTOL:g} max|{name}| = "
+            f"{-PSD_RTOL * float(scale):.3g} allowed)"
+        )
+    return require(matrix, semidefinite, f"{name} must be positive semidefinite")
 
 
 def check_stiffness(K, n_bodies: int):

@@ -1,0 +1,47 @@
+"""Bounds on what a scenario file may ask for, checked before anything is allocated:
+an oversized request is a problem of the scenario, named by its table and key, not
+an out-of-memory crash of the run that follows.
+
+- `MAX_SCENARIO_FILE_BYTES`: the TOML file itself (16 MiB).
+- `MAX_DATA_FILE_BYTES`: one data file it refers to, CSV or .npy (1 GiB).
+- `MAX_SAMPLES_BYTES`: the samples built from one CSV time series, forces
+  `(rows, bodies, 6)` or prescribed motion (1 GiB of float64).
+- `MAX_OUTPUT_BYTES`: the results of one run, `output_bytes` (1 GiB of float64).
+"""
+
+MAX_SCENARIO_FILE_BYTES = 16 * 2**20
+MAX_DATA_FILE_BYTES = 2**30
+MAX_SAMPLES_BYTES = 2**30
+MAX_OUTPUT_BYTES = 2**30
+
+FLOAT_BYTES = 8
+
+
+def output_numbers_per_sample(
+    n_bodies: int, n_connections: int, prescribed: bool
+) -> int:
+    """How many float64 numbers one output sample of a run holds in its results: the
+    time, $Y$, $\\dot Y$ and $\\partial\\Pi/\\partial Y$ (`6 * bodies` each), the
+    reactions of prescribed coordinates (`6 * bodies`), six energies, and one
+    elastic wrench per connection (6 each)."""
+    per_body = 3 + (1 if prescribed else 0)
+    return 1 + 6 * n_bodies * per_body + 6 + 6 * n_connections
+
+
+def output_bytes(
+    samples: int, n_bodies: int, n_connections: int, prescribed: bool
+) -> int:
+    """Bytes of the results of a run with `samples` output times."""
+    numbers = output_numbers_per_sample(n_bodies, n_connections, prescribed)
+    return samples * numbers * FLOAT_BYTES
+
+
+def format_bytes(size: int | float) -> str:
+    """`1.5 GiB`, `12.3 MiB`, `640 bytes` (`over 1024 EiB` beyond that)."""
+    if size >= 2**70:
+        return "over 1024 EiB"
+    units = ("EiB", "PiB", "TiB", "GiB", "MiB", "KiB")
+    for unit, scale in zip(units, (2**60, 2**50, 2**40, 2**30, 2**20, 2**10)):
+        if size >= scale:
+            return f"{size / scale:.3g} {unit}"
+    return f"{int(size)} bytes"
