@@ -210,10 +210,16 @@ def test_modes_of_the_held_beam(examples_dir, tmp_path, capsys):
     assert code == 0
     out = capsys.readouterr().out
     assert "contact bodies are held" in out and "f [Hz]" in out and "beam." in out
-    summary = json.loads((outdir / "modes.json").read_text())
+    text = (outdir / "modes.json").read_text()
+    summary = json.loads(text, parse_constant=not_json)  # strict JSON
     freqs = np.array(summary["frequencies_hz"])
     assert freqs.shape == (6,) and np.all(np.diff(freqs) >= 0) and freqs[0] > 0
     assert (outdir / "modes.png").stat().st_size > 0
+    assert {p.name for p in tmp_path.iterdir()} == {"modes"}  # nothing left beside
+
+
+def not_json(word):
+    raise ValueError(f"{word} is not JSON")
 
 
 BAD_MASS = GIMBAL.replace("mass = 1.0", "mass = -1.0")

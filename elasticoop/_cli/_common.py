@@ -13,6 +13,7 @@ import traceback
 import numpy as np
 
 from .._config import ScenarioError, load_scenario
+from .._io.folder import OutputFolder, OutputFolderError
 from .._simulate import SimulationError, simulate
 
 EXIT_OK = 0
@@ -105,7 +106,7 @@ def report_user_errors(command: str, *, debug: bool = False, paths=()):
 
     try:
         yield outcome
-    except (ScenarioError, UserError) as err:
+    except (ScenarioError, UserError, OutputFolderError) as err:
         report(f"error: {err}", EXIT_USAGE)
     except SimulationError as err:
         report(f"simulation stopped early: {err}", EXIT_SIMULATION)
@@ -196,9 +197,35 @@ def load(path):
     return load_scenario(path)
 
 
-def write_results(scenario, traj, wall_time, outdir, args) -> list:
+def add_output_options(parser, help: str, required: bool = False) -> None:
+    """`-o/--output OUTDIR` and `--overwrite` (see `output_folder`)."""
+    parser.add_argument(
+        "-o", "--output", metavar="OUTDIR", required=required, help=help
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace OUTDIR if it holds the results of an earlier run (without "
+        "it, a folder that is not empty is refused)",
+    )
+
+
+def output_folder(args, scenario_file: str | None = None) -> OutputFolder:
+    """The checked output folder of `-o`, before any work: raises
+    `OutputFolderError` when it is a file, not empty (without `--overwrite`), is
+    or holds the scenario file or the current folder, or cannot be created."""
+    keep = {os.getcwd(): "the current folder"}
+    if scenario_file:
+        keep[scenario_file] = "the scenario file"
+    folder = OutputFolder.of(args.output, overwrite=args.overwrite, keep=keep)
+    folder.check()
+    return folder
+
+
+def write_results(scenario, traj, wall_time, folder: OutputFolder, args) -> list:
     """Write netCDF, CSV, JSON summary and (unless `--no-plots`) PNG plots and an
-    optional animation for one run; returns the paths written."""
+    optional animation for one run into `folder`, as a whole (see
+    `OutputFolder.writing`); returns the paths written."""
     from .._io.files import write_outputs
     from .._io.summary import scenario_summary
     from .._io.xarray import trajectory_to_xarray
@@ -216,15 +243,25 @@ def write_results(scenario, traj, wall_time, outdir, args) -> list:
         },
     )
     summary = scenario_summary(scenario, traj, wall_time)
-    paths = list(write_outputs(ds, summary, outdir).values())
-    if not getattr(args, "no_plots", False):
-        paths += write_plots(scenario, traj, outdir, args)
-    return paths
+    with folder.writing() as staging:
+        paths = list(write_outputs(ds, summary, staging).values())
+        if not getattr(args, "no_plots", False):
+            paths += write_plots(scenario, traj, staging, args)
+    return [folder.path / pathlib.Path(p).name for p in paths]
+
+
+def inapplicable_plots(traj) -> dict[str, str]:
+    """The plots that do not apply to a run, with the reason."""
+    from .._plotting import elastic_load_count
+
+    if elastic_load_count(traj) == 0:
+        return {"elastic_wrench.png": "the model has no connections or contact bodies"}
+    return {}
 
 
 def write_plots(scenario, traj, outdir, args) -> list:
-    import pathlib
-
+    """Draw the plots that apply to the run (see `inapplicable_plots`; those
+    skipped are named unless `--quiet`) into `outdir`; returns the paths."""
     from .._plotting import (
         plot_coordinates,
         plot_elastic_wrench,
@@ -234,19 +271,23 @@ def write_plots(scenario, traj, outdir, args) -> list:
     )
 
     outdir = pathlib.Path(outdir)
-    figures = {
-        "coordinates.png": plot_coordinates(traj, scenario.names),
-        "elastic_wrench.png": plot_elastic_wrench(
+    draw = {
+        "coordinates.png": lambda: plot_coordinates(traj, scenario.names),
+        "elastic_wrench.png": lambda: plot_elastic_wrench(
             traj, scenario.connection_names or None, scenario.names
         ),
-        "energy.png": plot_energy(traj),
-        "snapshots.png": plot_snapshots(
+        "energy.png": lambda: plot_energy(traj),
+        "snapshots.png": lambda: plot_snapshots(
             traj, times=getattr(args, "snapshots", None), body_names=scenario.names
         ),
     }
+    skipped = inapplicable_plots(traj)
     paths = []
-    for name, fig in figures.items():
-        fig.savefig(outdir / name, dpi=110)
+    for name, figure in draw.items():
+        if name in skipped:
+            say(args, f"  skipped {name}: {skipped[name]}")
+            continue
+        figure().savefig(outdir / name, dpi=110)
         paths.append(outdir / name)
     animation = getattr(args, "animation", None)
     if animation:

@@ -8,7 +8,9 @@ from .._examples import default_scenario
 from .._io.summary import format_summary, scenario_summary
 from ._common import (
     EXIT_OK,
+    add_output_options,
     common_options,
+    output_folder,
     positive_float,
     say,
     simulate_scenario,
@@ -36,9 +38,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--atol", type=positive_float, default=None, help="absolute tolerance"
     )
-    parser.add_argument(
-        "-o", "--output", metavar="OUTDIR", help="also write results and plots here"
-    )
+    add_output_options(parser, "also write results and plots here")
     parser.set_defaults(func=execute)
 
 
@@ -57,12 +57,13 @@ def execute(args) -> int:
     scenario = dataclasses.replace(
         scenario, **{k: v for k, v in tolerances.items() if v is not None}
     )
+    folder = None if args.output is None else output_folder(args)
     traj, wall, error = simulate_scenario(scenario, args)
-    if args.output:
-        paths = write_results(scenario, traj, wall, args.output, args)
+    if folder is not None:
+        paths = write_results(scenario, traj, wall, folder, args)
     if error is not None:
         raise error
     say(args, format_summary(scenario_summary(scenario, traj, wall)))
-    if args.output:
+    if folder is not None:
         say(args, "wrote " + ", ".join(str(p) for p in paths))
     return EXIT_OK

@@ -1,14 +1,21 @@
 """`elasticoop modes SCENARIO`: static equilibrium, linearization and modes."""
 
-import json
-import pathlib
-
 import numpy as np
 
 from .._analysis import linearize, modes, static_equilibrium
 from .._forces import ConstantForce
+from .._io.strict_json import strict_json
 from .._plotting import plot_mode_shapes
-from ._common import EXIT_OK, UserError, common_options, load, positive_int, say
+from ._common import (
+    EXIT_OK,
+    UserError,
+    add_output_options,
+    common_options,
+    load,
+    output_folder,
+    positive_int,
+    say,
+)
 
 NAME = "modes"
 
@@ -24,14 +31,15 @@ def register(subparsers) -> None:
             "held at their initial values (without one: every coordinate of the "
             "contact bodies is held), starting from the initial state; then "
             "linearize there and print the natural frequencies, damping ratios and "
-            "dominant coordinates of the modes. With -o, also write modes.json and "
-            "a plot of the first mode shapes."
+            "dominant coordinates of the modes. With -o, also write modes.json "
+            "(strict JSON: a damping ratio that does not apply is null) and a plot "
+            "of the first mode shapes, modes.png, into a new folder that takes "
+            "OUTDIR's place once both are written (OUTDIR must be missing or "
+            "empty, or hold earlier results with --overwrite)."
         ),
     )
     parser.add_argument("scenario", metavar="SCENARIO", help="TOML scenario file")
-    parser.add_argument(
-        "-o", "--output", metavar="OUTDIR", help="write modes.json and modes.png here"
-    )
+    add_output_options(parser, "write modes.json and modes.png here")
     parser.add_argument(
         "--count", type=positive_int, default=4, help="mode shapes to plot (default 4)"
     )
@@ -40,6 +48,7 @@ def register(subparsers) -> None:
 
 def execute(args) -> int:
     scenario = load(args.scenario)
+    folder = None if args.output is None else output_folder(args, args.scenario)
     forces = None
     if isinstance(scenario.forces, ConstantForce):
         forces = np.asarray(scenario.forces.F)
@@ -67,21 +76,18 @@ def execute(args) -> int:
         f"{'stable' if eq.stable else 'not stable'}",
         result.table(),
     )
-    if args.output:
-        out = pathlib.Path(args.output)
-        out.mkdir(parents=True, exist_ok=True)
+    if folder is not None:
         summary = {
             "scenario": scenario.name,
             "equilibrium": np.asarray(eq.y).tolist(),
             "frequencies_hz": result.frequencies_hz.tolist(),
-            "damping_ratios": [
-                None if np.isnan(z) else float(z) for z in result.damping_ratios
-            ],
+            "damping_ratios": result.damping_ratios.tolist(),
             "coordinates": list(result.names),
             "shapes": result.shapes.tolist(),
         }
-        (out / "modes.json").write_text(json.dumps(summary, indent=2))
-        fig = plot_mode_shapes(result, count=args.count)
-        fig.savefig(out / "modes.png", dpi=120)
-        say(args, f"wrote {out / 'modes.json'} and {out / 'modes.png'}")
+        with folder.writing() as staging:
+            (staging / "modes.json").write_text(strict_json(summary))
+            fig = plot_mode_shapes(result, count=args.count)
+            fig.savefig(staging / "modes.png", dpi=120)
+        say(args, f"wrote {folder.path / 'modes.json'} and {folder.path / 'modes.png'}")
     return EXIT_OK

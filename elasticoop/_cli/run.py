@@ -4,8 +4,11 @@ trajectory (netCDF, CSV), a JSON summary and plots."""
 from .._io.summary import format_summary, scenario_summary
 from ._common import (
     EXIT_OK,
+    add_output_options,
+    check_options,
     common_options,
     load,
+    output_folder,
     say,
     simulate_scenario,
     write_results,
@@ -24,15 +27,19 @@ def register(subparsers) -> None:
             "trajectory.nc (xarray/netCDF: dims time, body, coordinate), "
             "trajectory.csv (one column per quantity), summary.json, and the plots "
             "coordinates.png, elastic_wrench.png, energy.png, snapshots.png "
-            "(and animation.gif/.mp4 with --animation). Exit code 0 on success, 2 "
-            "for an invalid scenario, 3 when the simulation stops early (the "
-            "partial results are still written)."
+            "(and animation.gif/.mp4 with --animation; a plot that does not apply "
+            "to the scenario, such as elastic_wrench.png for a body on its own, is "
+            "skipped). The files are written into a new folder beside OUTDIR, "
+            "which takes OUTDIR's place once they are all written: an interrupted "
+            "run leaves OUTDIR as it was. OUTDIR must be missing or empty, or "
+            "hold an earlier run's results with --overwrite (then it is replaced "
+            "as a whole). Exit code 0 on success, 2 for an invalid scenario or an "
+            "unusable OUTDIR (checked before simulating), 3 when the simulation "
+            "stops early (the partial results are still written)."
         ),
     )
     parser.add_argument("scenario", metavar="SCENARIO", help="TOML scenario file")
-    parser.add_argument(
-        "-o", "--output", metavar="OUTDIR", required=True, help="folder for results"
-    )
+    add_output_options(parser, "folder for results", required=True)
     parser.add_argument(
         "--no-plots", action="store_true", help="write data files only, no PNGs"
     )
@@ -53,9 +60,11 @@ def register(subparsers) -> None:
 
 def execute(args) -> int:
     scenario = load(args.scenario)
+    check_options(scenario, args)
+    folder = output_folder(args, args.scenario)
     say(args, f"elasticoop run: {scenario.name} ({args.scenario})")
     traj, wall, error = simulate_scenario(scenario, args)
-    paths = write_results(scenario, traj, wall, args.output, args)
+    paths = write_results(scenario, traj, wall, folder, args)
     if error is not None:
         raise error
     say(args, format_summary(scenario_summary(scenario, traj, wall)))

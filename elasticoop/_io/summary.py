@@ -14,7 +14,9 @@ def summarize(traj, body_names=None, connection_names=None) -> dict:
     """A JSON-ready summary of a trajectory: object displacement and rotation, peak
     elastic force and torque per connection (`MobileModel`) or per contact body
     (`ImmobileModel`, from $\\partial\\Pi/\\partial Y$), and the energy balance
-    $\\Delta(T + \\Pi + \\sum m g z) = W_F - E_{diss}$ with its residual."""
+    $\\Delta(T + \\Pi + \\sum m g z) = W_F - E_{diss}$ with its residual, also
+    relative to the largest term of the balance ($|W_F|$, $E_{diss}$,
+    $|\\Delta T|$, $|\\Delta \\Pi|$, $|\\Delta \\sum m g z|$)."""
     model = traj.model
     n = model.n_bodies
     bodies = body_names_of(body_names, n)
@@ -29,6 +31,17 @@ def summarize(traj, body_names=None, connection_names=None) -> dict:
         kinetic[0] + elastic[0] + gravity[0]
     )
     residual = change - work + dissipated
+    # The residual relative to the largest term of the balance: each energy's
+    # change, the work and the dissipated energy (a body falling freely trades
+    # kinetic for gravity energy with no work: its total change is round-off).
+    terms = (
+        work,
+        dissipated,
+        kinetic[last] - kinetic[0],
+        elastic[last] - elastic[0],
+        gravity[last] - gravity[0],
+    )
+    scale = max(max(abs(float(term)) for term in terms), 1e-300)
     pairs, wrench = traj.grasp_loads()
     wrench = np.asarray(wrench)[: last + 1]
     if isinstance(model, MobileModel):
@@ -62,9 +75,7 @@ def summarize(traj, body_names=None, connection_names=None) -> dict:
             "work_of_forces": work,
             "dissipated": dissipated,
             "residual": float(residual),
-            "relative_residual": float(
-                abs(residual) / max(abs(work), abs(dissipated), abs(change), 1e-300)
-            ),
+            "relative_residual": float(abs(residual) / scale),
         },
         "pairs": [list(p) for p in pairs],
     }

@@ -2,6 +2,7 @@
 
 from .modes import plot_mode_shapes as plot_mode_shapes
 from .time_series import (
+    elastic_load_count as elastic_load_count,
     plot_coordinates as plot_coordinates,
     plot_elastic_wrench as plot_elastic_wrench,
     plot_energy as plot_energy,

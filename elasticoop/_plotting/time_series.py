@@ -64,6 +64,16 @@ def plot_coordinates(traj, body_names=None, relative: bool = True):
     return fig
 
 
+def elastic_load_count(traj) -> int:
+    """The number of columns of `plot_elastic_wrench`: the connections of a
+    `MobileModel`, the contact bodies of an `ImmobileModel` (zero for a body on
+    its own, which has nothing to plot)."""
+    model = traj.model
+    if isinstance(model, MobileModel):
+        return int(np.shape(model.pairs)[0])
+    return model.n_bodies - 1
+
+
 def plot_elastic_wrench(traj, connection_names=None, body_names=None):
     """Elastic wrench over time, one column per connection (`MobileModel`:
     $-\\partial\\Pi_{ij}/\\partial Y_i$ on the connection's first body) or per contact
@@ -73,6 +83,8 @@ def plot_elastic_wrench(traj, connection_names=None, body_names=None):
     **Returns:** the `matplotlib.figure.Figure`.
     """
     check_single(traj)
+    if elastic_load_count(traj) == 0:
+        raise ValueError("the model has no connections or contact bodies to plot")
     names = resolve_body_names(traj, body_names)
     t = np.asarray(traj.ts)
     pairs, wrench = traj.grasp_loads()
@@ -85,8 +97,6 @@ def plot_elastic_wrench(traj, connection_names=None, body_names=None):
         titles = [f"{name}\n(-dPi/dY)" for name in names[1:]]
         what = "Elastic force on each contact body"
     count = wrench.shape[1]
-    if count == 0:
-        raise ValueError("the model has no connections or contact bodies to plot")
     fig = new_figure(max(6.0, 3.6 * count), 5.2)
     axes = _grid(fig, 2, count)
     angles = angle_names(traj)
