@@ -14,6 +14,7 @@ from .execution import (
     chunk_size_for as chunk_size_for,
     run_study as run_study,
 )
+from .lock import StoreLockedError as StoreLockedError
 from .outputs import (
     Output as Output,
     elastic_force as elastic_force,

@@ -11,11 +11,14 @@ study, its number and `batch_width`: not on the chunk size, its position in the
 chunk, its neighbours, the number of devices or of processes (bit for bit).
 """
 
+import contextlib
 import math
+import platform
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
+import diffrax
 import equinox as eqx
 import jax
 import numpy as np
@@ -24,11 +27,12 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from tqdm import tqdm
 
 from .._status import Status
+from .._version import __version__
 from .distributed import barrier, broadcast_from_first, gather, is_first_process
+from .lock import store_lock
 from .sampling import lhs_strata
 from .store import (
     FORMAT,
-    completed_chunks,
     concatenate,
     open_study,
     prepare,
@@ -36,7 +40,7 @@ from .store import (
     to_dataset,
     write_chunk,
 )
-from .study import INVALID_SAMPLE, Study, one_sample
+from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
 
 DEFAULT_BATCH_WIDTH = 32
 DEFAULT_MEMORY_BUDGET = 2**30  # bytes
@@ -122,10 +126,16 @@ def chunk_size_for(
 
 
 def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
+    description, parts = study.describe(), study.fingerprint_parts()
     return {
         "format": FORMAT,
-        "study": study.describe(),
-        "fingerprint": study.fingerprint(),
+        "study": description,
+        "fingerprint": combined_fingerprint(description, parts),
+        "parts": {name: part.hexdigest() for name, part in parts.items()},
+        "unverified": {
+            name: part.unverified for name, part in parts.items() if part.unverified
+        },
+        "versions": _versions(),
         "chunk_size": chunk_size,
         "batch_width": batch_width,
         "n_chunks": math.ceil(study.n_samples / chunk_size),
@@ -133,6 +143,18 @@ def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
         "coords": _labels(study),
         "status_codes": {s.name: int(s) for s in Status}
         | {"INVALID_SAMPLE": INVALID_SAMPLE},
+    }
+
+
+def _versions() -> dict[str, str]:
+    """Versions of Python and of the libraries that compute a sample."""
+    return {
+        "python": platform.python_version(),
+        "elasticoop": __version__,
+        "jax": jax.__version__,
+        "equinox": eqx.__version__,
+        "diffrax": diffrax.__version__,
+        "numpy": np.__version__,
     }
 
 
@@ -161,6 +183,7 @@ def run_study(
     devices=None,
     progress: bool = True,
     on_chunk: Callable[[int], None] | None = None,
+    trust_callables: bool = False,
 ) -> xr.Dataset:
     """Simulate every sample of `study`, chunk by chunk.
 
@@ -168,7 +191,10 @@ def run_study(
 
     - `study`: a `Study`.
     - `store`: a directory for the results (created; resumed when it already holds
-      this study: complete chunks are skipped). `None` keeps results in memory.
+      this study: complete chunks are skipped, damaged ones computed again with a
+      warning naming the file). `None` keeps results in memory. A run holds an
+      exclusive lock on the store: a second run on it fails at once, naming the
+      first.
     - `chunk_size`: samples per chunk (default: from `memory_budget`; a resumed
       store keeps its own).
     - `batch_width`: samples integrated together by `vmap` on each device. Results
@@ -178,6 +204,14 @@ def run_study(
       device of every process after `jax.distributed.initialize`).
     - `progress`: show a progress bar (samples done, rate, ETA) on the first process.
     - `on_chunk`: called with the chunk number after each chunk is stored.
+    - `trust_callables`: resume a store even though parts of the study cannot be
+      verified to be unchanged since it was started. A store is resumed only when
+      every part that decides a sample's value is the same (`Study.fingerprint`:
+      outputs, distributions and their inverse CDFs, `where` selectors and forces
+      are compared by what they compute, see `Study.fingerprint_parts`). A Python
+      function called through `jax.pure_callback` or similar cannot be compared;
+      the run then refuses to resume, naming it, unless `trust_callables=True`
+      says that it is unchanged.
 
     **Returns:** an `xarray.Dataset` with dimension `sample`: the drawn parameter
     values, the outputs, `status` (`Status` codes; -1 for a sample whose drawn
@@ -194,9 +228,36 @@ def run_study(
         raise ValueError(f"batch_width must be a positive integer, got {batch_width!r}")
     devices = list(jax.devices() if devices is None else devices)
     mesh = Mesh(np.array(devices), ("samples",))
-    lanes = batch_width * len(devices)
+    with contextlib.ExitStack() as stack:
+        if store is None:
+            chunk_size = _chunk_size(
+                study, None, None, chunk_size, memory_budget, batch_width, len(devices)
+            )
+            manifest = _manifest(study, chunk_size, batch_width)
+            done = np.zeros(manifest["n_chunks"], dtype=bool)
+        else:
+            manifest, done = _open_store(
+                study,
+                store,
+                stack,
+                chunk_size,
+                memory_budget,
+                batch_width,
+                len(devices),
+                trust_callables,
+            )
+        records = _run_chunks(
+            study, store, manifest, done, mesh, batch_width, progress, on_chunk
+        )
+    if store is None:
+        return to_dataset(concatenate(records), manifest)
+    barrier("elasticoop-montecarlo-finished")
+    return open_study(store)
 
-    existing = None if store is None else read_manifest(store)
+
+def _chunk_size(
+    study, store, existing, chunk_size, memory_budget, batch_width, n_devices
+):
     if existing is not None:
         if chunk_size is not None and chunk_size != existing["chunk_size"]:
             raise ValueError(
@@ -205,24 +266,70 @@ def run_study(
             )
         chunk_size = existing["chunk_size"]
     elif chunk_size is None:
-        chunk_size = chunk_size_for(study, memory_budget, batch_width, len(devices))
+        chunk_size = chunk_size_for(study, memory_budget, batch_width, n_devices)
     if (
         isinstance(chunk_size, bool)
         or not isinstance(chunk_size, int)
         or chunk_size < 1
     ):
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
-    manifest = _manifest(study, chunk_size, batch_width)
-    n_chunks = manifest["n_chunks"]
+    return chunk_size
 
-    done = np.zeros(n_chunks, dtype=bool)
-    if store is not None:
-        if is_first_process():
-            prepare(store, manifest)
-            done[[c for c in completed_chunks(store) if c < n_chunks]] = True
-        done = broadcast_from_first(done)
-        barrier("elasticoop-montecarlo-prepared")
 
+def _open_store(
+    study,
+    store,
+    stack,
+    chunk_size,
+    memory_budget,
+    batch_width,
+    n_devices,
+    trust_callables,
+) -> tuple[dict, np.ndarray]:
+    """Lock, check and prepare the store on the first process (the lock is held
+    until `stack` closes); every process gets the manifest and the done chunks."""
+    if is_first_process():
+        try:
+            path = Path(store)
+            try:
+                path.mkdir(parents=True, exist_ok=True)
+            except OSError as err:
+                raise ValueError(f"cannot use {path} as a study store: {err}") from None
+            stack.enter_context(store_lock(path))
+            existing = read_manifest(path)
+            chunk_size = _chunk_size(
+                study, path, existing, chunk_size, memory_budget, batch_width, n_devices
+            )
+            manifest = _manifest(study, chunk_size, batch_width)
+            manifest = prepare(path, manifest, trust_callables)
+        except Exception:
+            broadcast_from_first(np.zeros(2, np.int64))  # the others stop too
+            raise
+        broadcast_from_first(np.array([1, chunk_size], np.int64))
+        done = np.zeros(manifest["n_chunks"], dtype=bool)
+        done[[int(c) for c in manifest["chunks"]]] = True
+    else:
+        ok, chunk_size = broadcast_from_first(np.zeros(2, np.int64)).tolist()
+        if not ok:
+            raise RuntimeError(
+                f"the first process could not open the study store {store} (see "
+                f"its error)"
+            )
+        manifest = _manifest(study, chunk_size, batch_width)
+        done = np.zeros(manifest["n_chunks"], dtype=bool)
+    done = broadcast_from_first(done)
+    barrier("elasticoop-montecarlo-prepared")
+    return manifest, done
+
+
+def _run_chunks(
+    study, store, manifest, done, mesh, batch_width, progress, on_chunk
+) -> list[dict]:
+    """Compute the chunks not `done`: stored (first process) when `store` is given,
+    returned otherwise."""
+    chunk_size, n_chunks = manifest["chunk_size"], manifest["n_chunks"]
+    n_devices = mesh.devices.size
+    lanes = batch_width * n_devices
     strata = lhs_strata(study)
     traced = _replicated(mesh, study)
     in_memory = []
@@ -252,9 +359,9 @@ def run_study(
                 _run_batch(
                     traced,
                     mesh,
-                    _global_array(mesh, part.reshape(len(devices), batch_width)),
+                    _global_array(mesh, part.reshape(n_devices, batch_width)),
                     _global_array(
-                        mesh, strata[part].reshape(len(devices), batch_width, -1)
+                        mesh, strata[part].reshape(n_devices, batch_width, -1)
                     ),
                 )
                 for part in index.reshape(-1, lanes)
@@ -269,13 +376,10 @@ def run_study(
             if store is None:
                 in_memory.append(record)
             elif is_first_process():
-                write_chunk(store, chunk, record)
+                write_chunk(store, chunk, record, manifest)
             failed += int(np.sum(record["status"] != Status.SUCCESS))
             bar.update(stop - start)
             bar.set_postfix(failed=failed)
             if on_chunk is not None:
                 on_chunk(chunk)
-    if store is None:
-        return to_dataset(concatenate(in_memory), manifest)
-    barrier("elasticoop-montecarlo-finished")
-    return open_study(store)
+    return in_memory

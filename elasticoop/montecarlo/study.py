@@ -17,6 +17,7 @@ from .._naming import connection_names, coordinate_names, default_body_names
 from .._options import SimulationOptions
 from .._simulate import simulate
 from .._validation import as_float_array, check_times
+from .fingerprint import Digest, abstract
 from .outputs import Output
 from .parameters import _RESERVED, Inputs, Parameter
 from .sampling import draw
@@ -352,10 +353,67 @@ class Study(eqx.Module):
             "inputs_sha256": _inputs_hash(self.inputs),
         }
 
+    def fingerprint_parts(self) -> dict[str, Digest]:
+        """A `Digest` of each part of the study that decides a sample's value, by
+        name: `settings` (samples, key, sampling, times), `solver options`,
+        `model` (its arrays and static fields: convention, connectivity, ...),
+        `y_init`, `ydot_init`, `forces`, `parameters['name']` (its leaf, law and
+        sampler) and `outputs['name']`.
+
+        Callables are digested by what they compute (their jaxpr, see the module
+        `elasticoop.montecarlo.fingerprint`), so a changed output, distribution
+        function, inverse CDF, `where` or feedback force changes its part's digest.
+        What could not be digested is listed in the part's `Digest.unverified`."""
+        inputs = self.inputs
+        parts = {
+            "settings": Digest().value(
+                (self.n_samples, self.key_data, self.sampling, self.ts)
+            ),
+            "solver options": Digest().value(self.options),
+            "model": Digest().value(inputs.model),
+            "y_init": Digest().value(inputs.y_init),
+            "ydot_init": Digest().value(inputs.ydot_init),
+        }
+        forces = Digest().value(inputs.forces, callables_traced=True)
+        if inputs.forces is not None:
+            t = jax.ShapeDtypeStruct((), np.asarray(self.ts).dtype)
+            y = abstract(inputs.y_init)
+            forces.computation(inputs.forces, t, y, y)
+        parts["forces"] = forces
+        abstract_inputs = abstract(inputs)
+        for p in self.parameters:
+            shape, law = self.leaf_shapes[p.name], p.distribution
+            part = Digest().value(p, callables_traced=True)
+            part.computation(p.nominal, abstract_inputs)
+            if self.sampling == "lhs":
+                u = jax.ShapeDtypeStruct(shape, jnp.float64)
+                part.computation(law.ppf, u)
+            else:
+                key = jax.ShapeDtypeStruct((2,), jnp.uint32)
+                part.computation(
+                    lambda k, law=law, s=shape: law.sample(
+                        jax.random.wrap_key_data(k), s
+                    ),
+                    key,
+                )
+            parts[f"parameters[{p.name!r}]"] = part
+        traj = eqx.filter_eval_shape(self.simulate, inputs)
+        for name, out in self.outputs.items():
+            part = Digest().value(out, callables_traced=True)
+            parts[f"outputs[{name!r}]"] = part.computation(out, traj)
+        return parts
+
     def fingerprint(self) -> str:
-        """SHA-256 of `describe()`: equal fingerprints mean the same study."""
-        text = json.dumps(self.describe(), sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()
+        """SHA-256 of `describe()` and of the digests of `fingerprint_parts()`:
+        equal fingerprints mean the same study (every sample the same value)."""
+        return combined_fingerprint(self.describe(), self.fingerprint_parts())
+
+
+def combined_fingerprint(description: dict, parts: Mapping[str, Digest]) -> str:
+    """SHA-256 of a study's `describe()` and its parts' digests."""
+    digests = {name: part.hexdigest() for name, part in parts.items()}
+    text = json.dumps({"study": description, "parts": digests}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def _check_labelled(what: str, dims, shape, labels: dict) -> None:
