@@ -49,13 +49,17 @@ def enable_compilation_cache(path=None) -> pathlib.Path:
     code; `simulate` always contains some) compiles to one; so for the rest of the
     process those checks are switched to equinox's `"nan"` mode (a failed check
     returns NaN instead of raising), as the environment variable
-    `EQX_ON_ERROR=nan` would. `simulate` still reports early stops through
-    `Trajectory.status` and raises `SimulationError` for concrete results; but
-    runtime checks of traced inputs and `throw=True` under `jit` give NaN instead
-    of an error, and under `vmap` a check that fails for one element of the batch
-    gives NaN for the whole batch. Functions compiled before this call keep
-    raising (and are not stored): call it before the first simulation. For a
-    limited stretch of a program, use `compilation_cache` instead.
+    `EQX_ON_ERROR=nan` would.
+
+    `simulate` behaves the same either way: it reports faults in
+    `Trajectory.status` (NaN or inf in traced states or forces included, each
+    element of a `vmap` batch on its own), raises `SimulationError` for concrete
+    results, and `throw=True` raises under `jit` too (such a function is then not
+    stored). Other runtime checks of traced values, such as a `RigidBody` built
+    from a traced mass inside `jit`, give NaN instead of an error, for the whole
+    batch under `vmap`. Functions compiled before this call keep raising (and are
+    not stored): call it before the first simulation. For a limited stretch of a
+    program, use `compilation_cache` instead.
     """
     check_equinox_version()
     path = _use_folder(path)

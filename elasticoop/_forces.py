@@ -39,12 +39,17 @@ class AbstractForce(eqx.Module):
 
 
 class ConstantForce(AbstractForce):
-    """A constant generalized force `F` of shape `(m, 6)` or `(m + 1, 6)`."""
+    """A constant generalized force `F` of shape `(m, 6)` or `(m + 1, 6)`.
+
+    Concrete `F` must be finite; traced `F` (under `jit`/`vmap`) is not checked
+    here: `simulate` reports NaN or inf forces as `Status.NONFINITE`."""
 
     F: Forces
 
     def __init__(self, F: ArrayInput):
-        self.F = jnp.asarray(as_float_array(F, "ConstantForce.F", (None, 6)))
+        self.F = jnp.asarray(
+            as_float_array(F, "ConstantForce.F", (None, 6), check_traced=False)
+        )
 
     def __call__(self, t: TimeLike, y: State | None, ydot: State | None) -> Forces:
         return self.F
@@ -95,8 +100,13 @@ def kink_times(
 
 class SampledForce(AbstractForce):
     """Force samples `F` of shape `(len(ts), m, 6)` (or `(len(ts), m + 1, 6)`) at
-    times `ts`, interpolated linearly (`diffrax.LinearInterpolation`). Simulated
-    times must lie within `ts`.
+    times `ts`, interpolated linearly (`diffrax.LinearInterpolation`).
+
+    Simulated times must lie within `ts`; nothing is extrapolated. `simulate` (and
+    `Study`, `Experiment` and scenario files) refuse a time span the samples do not
+    cover where the times are concrete; under `jit`/`vmap` a run that reaches a time
+    outside the samples stops there with `Status.OUTSIDE_FORCE_SAMPLES`. Concrete
+    samples must be finite; traced ones that are not give `Status.NONFINITE`.
 
     `jump_ts` are the times passed to the step-size controller as jump times, so
     that an adaptive solver steps onto the kinks of the interpolant. By default
@@ -115,7 +125,9 @@ class SampledForce(AbstractForce):
         self, ts: ArrayInput, F: ArrayInput, jump_ts: ArrayInput | None = None
     ):
         ts = check_times(ts, "SampledForce.ts")
-        F = as_float_array(F, "SampledForce.F", (ts.shape[0], None, 6))
+        F = as_float_array(
+            F, "SampledForce.F", (ts.shape[0], None, 6), check_traced=False
+        )
         self.ts = jnp.asarray(ts)
         self.F = jnp.asarray(F)
         if jump_ts is not None:
@@ -132,18 +144,79 @@ class SampledForce(AbstractForce):
 
 
 class FeedbackForce(AbstractForce):
-    """A force from a callable `fn(t, y, ydot) -> (m, 6)`, e.g. a feedback law."""
+    """A force from a callable `fn(t, y, ydot) -> (m, 6)`, e.g. a feedback law. It
+    must return real numbers (an array, or nested lists, of floats or integers)."""
 
     fn: Callable[..., ArrayInput] = eqx.field(static=True)
 
     def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
-        return jnp.asarray(self.fn(t, y, ydot), dtype=jnp.float64)
+        return real_forces(self.fn(t, y, ydot), self.fn)
+
+
+def _callable_name(fn: Callable) -> str:
+    return getattr(fn, "__qualname__", None) or type(fn).__name__
+
+
+def real_forces(value: object, fn: Callable) -> Float[Array, "..."]:
+    """What the force callable `fn` returned, `value`, as a float64 array; a
+    `ValueError` naming `fn` unless it holds real numbers (`None`, strings, objects
+    and complex numbers are refused: a complex force has no physical meaning, and
+    casting it would silently drop its imaginary part)."""
+    problem = None
+    try:
+        arr = jnp.asarray(value)
+    except (TypeError, ValueError):
+        problem = f"{type(value).__name__} {value!r}"
+    else:
+        if jnp.issubdtype(arr.dtype, jnp.complexfloating):
+            problem = f"complex values (dtype {arr.dtype})"
+        elif not (
+            jnp.issubdtype(arr.dtype, jnp.floating)
+            or jnp.issubdtype(arr.dtype, jnp.integer)
+        ):
+            problem = f"values of dtype {arr.dtype}"
+    if problem is not None:
+        raise ValueError(
+            f"forces: the callable {_callable_name(fn)} must return real numbers, an "
+            f"array of shape (m, 6) or (m + 1, 6), but returned {problem}"
+        )
+    return arr.astype(jnp.float64)
 
 
 def jump_times(force: AbstractForce | None) -> Times | None:
     """Times at which `force` has kinks, handed to the step-size controller
     (`SampledForce.jump_ts`; none otherwise)."""
     return force.jump_ts if isinstance(force, SampledForce) else None
+
+
+def sampled_interval(force: AbstractForce | None) -> tuple[Scalar, Scalar] | None:
+    """The times `(first, last)` within which `force` is defined (the first and the
+    last sample of a `SampledForce`); `None` for a force defined at all times."""
+    if isinstance(force, SampledForce):
+        return force.ts[0], force.ts[-1]
+    return None
+
+
+def check_coverage(
+    force: AbstractForce | None,
+    ts: Float[Array | np.ndarray, " times"],
+    owner: str = "",
+) -> None:
+    """A `ValueError` unless `force` is defined over the times `ts` (a
+    `SampledForce` must have samples from `ts[0]` to `ts[-1]`). Checked where both
+    are concrete; under `jit`/`vmap`, `simulate` reports a run that leaves the
+    samples as `Status.OUTSIDE_FORCE_SAMPLES` instead. `owner` prefixes the field
+    names in the message (`"Study."` gives `Study.ts`)."""
+    interval = sampled_interval(force)
+    if interval is None or not is_concrete(interval, ts):
+        return
+    lo, hi = (float(t) for t in interval)
+    if float(ts[0]) < lo or float(ts[-1]) > hi:
+        raise ValueError(
+            f"{owner}ts spans [{float(ts[0])}, {float(ts[-1])}] s but the "
+            f"{owner}forces (SampledForce) samples only cover [{lo}, {hi}] s; "
+            f"samples are not extrapolated"
+        )
 
 
 def as_force(
@@ -223,23 +296,23 @@ def check_force(
     owner: str = "",
 ) -> AbstractForce | None:
     """`forces` as an `AbstractForce` (or `None`), checked against the system: its
-    value at `ts[0]` must have shape `(m, 6)` or `(m + 1, 6)`, and a
-    `SampledForce` must cover the times `ts` (checked where both are concrete).
+    value at `ts[0]` must be real numbers of shape `(m, 6)` or `(m + 1, 6)`, and a
+    `SampledForce` must cover the times `ts` (`check_coverage`).
     `owner` prefixes the field name in errors (`"Study."` gives `Study.forces`)."""
     force = as_force(forces)
     if force is None:
         return None
     n_bodies = y_init.shape[0]
-    check_force_shape(
-        jax.eval_shape(force, ts[0], y_init, ydot_init).shape, n_bodies, owner
-    )
-    if isinstance(force, SampledForce) and is_concrete(force.ts, ts):
-        lo, hi = float(force.ts[0]), float(force.ts[-1])
-        if float(ts[0]) < lo or float(ts[-1]) > hi:
-            raise ValueError(
-                f"{owner}ts spans [{float(ts[0])}, {float(ts[-1])}] s but the "
-                f"{owner}forces (SampledForce) samples only cover [{lo}, {hi}] s"
-            )
+    value = jax.eval_shape(force, ts[0], y_init, ydot_init)
+    dtype = getattr(value, "dtype", None)
+    if dtype is None or not jnp.issubdtype(dtype, jnp.floating):
+        got = type(value).__name__ if dtype is None else f"dtype {dtype}"
+        raise ValueError(
+            f"{owner}forces ({type(force).__name__}) must give an array of "
+            f"floating-point numbers, got {got}"
+        )
+    check_force_shape(value.shape, n_bodies, owner)
+    check_coverage(force, ts, owner)
     return force
 
 

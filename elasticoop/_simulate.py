@@ -6,8 +6,9 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ._custom_types import (
     ArrayInput,
@@ -18,7 +19,13 @@ from ._custom_types import (
     Times,
     Validated,
 )
-from ._forces import AbstractForce, check_force, jump_times, pad_to_bodies
+from ._forces import (
+    AbstractForce,
+    check_force,
+    jump_times,
+    pad_to_bodies,
+    sampled_interval,
+)
 from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
@@ -77,8 +84,8 @@ def simulate(
     - `forces`: `None`, an array `(m, 6)` (constant), a `ConstantForce`,
       `SampledForce`, or a callable `f(t, y, ydot) -> (m, 6)`. A leading row for the
       object, shape `(m + 1, 6)`, adds a disturbance on it.
-    - `solver`: any diffrax solver (default `diffrax.Tsit5()`; an implicit one such as
-      `diffrax.Kvaerno5()` for stiff grasps).
+    - `solver`: any diffrax solver (default `diffrax.Tsit5()`; explicit solvers such
+      as `diffrax.Dopri8()` stay faster than implicit ones even for stiff grasps).
     - `rtol`, `atol`: tolerances of the adaptive step-size controller.
     - `max_steps`: the most steps the solver may take.
     - `dt0`: initial step (default: chosen by diffrax).
@@ -86,7 +93,8 @@ def simulate(
       `RecursiveCheckpointAdjoint`).
     - `throw`: `None` (default) raises `SimulationError` for an early stop when the
       result is concrete, and reports it in `Trajectory.status` under `jit`/`vmap`/
-      `grad`; `True` raises in both cases; `False` never raises.
+      `grad` (each element of a batch on its own); `True` raises in both cases
+      (also with the compilation cache on); `False` never raises.
     - `gimbal_tol`: the run stops when a body's $|\\sin\\theta|$ (ZXZ) or
       $|\\cos(\\text{pitch})|$ (RPY) falls below this.
     - `link_tol`: the run stops when a link with rest length $\\rho_0 > 0$ shrinks to
@@ -101,6 +109,13 @@ def simulate(
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces, and `jax.vmap`-able over any of them.
+
+    A run stops at once, with its own `Status`, at NaN or inf in the state, the
+    forces or the step size (`NONFINITE`), when the step size collapses on finite
+    values (`SOLVER_FAILED`), and when it reaches a time outside the samples of a
+    `SampledForce` (`OUTSIDE_FORCE_SAMPLES`). Traced inputs that are not finite are
+    reported the same way rather than raised, so that in a batch one bad element
+    never affects the others.
     """
     if not isinstance(model, AbstractElasticModel):
         raise ValueError(
@@ -115,8 +130,11 @@ def simulate(
         link_tol,
     )
     n = model.n_bodies
-    y_init = jnp.asarray(as_float_array(y_init, "y_init", (n, 6)))
-    ydot_init = jnp.asarray(as_float_array(ydot_init, "ydot_init", (n, 6)))
+    # Traced non-finite states are reported in `Trajectory.status`, lane by lane.
+    y_init = jnp.asarray(as_float_array(y_init, "y_init", (n, 6), check_traced=False))
+    ydot_init = jnp.asarray(
+        as_float_array(ydot_init, "ydot_init", (n, 6), check_traced=False)
+    )
     ts = jnp.asarray(check_times(ts, "ts"))
     if prescribed is not None:
         if not isinstance(prescribed, PrescribedMotion):
@@ -156,11 +174,15 @@ def simulate(
         if int(traj.status) != Status.SUCCESS:
             raise SimulationError(status_message(traj), traj)
     elif throw:
+        # Raises whatever equinox's error mode (the compilation cache switches it to
+        # "nan"): `throw=True` asks for an error.
         y = eqx.error_if(
             traj.y,
             traj.status != Status.SUCCESS,
-            "simulation stopped early (gimbal lock, collapsed link or solver "
-            "failure); run with throw=False and inspect Trajectory.status",
+            "simulation stopped early (gimbal lock, collapsed link, non-finite "
+            "values, the end of the force samples or solver failure); run with "
+            "throw=False and inspect Trajectory.status",
+            on_error="raise",
         )
         traj = eqx.tree_at(lambda t: t.y, traj, y)
     return traj
@@ -226,6 +248,77 @@ def _link_margin(
     return jnp.where(model.rest_length > 0, margin, jnp.inf)
 
 
+# A step shorter than this many units in the last place of the times that gives NaN
+# or inf ends the run: the vector field is not finite right after the current time.
+_MIN_STEP_ULPS = 16
+
+
+class _StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
+    """An adaptive step-size controller that ends the solve at once (diffrax's
+    `RESULTS.dt_min_reached`) where no step can succeed. That is when a rejected
+    step gave NaN or inf although it was shorter than `min_step` (or its length was
+    NaN or inf itself): the vector field is not finite right after the current
+    time, and shorter steps only repeat that. Or when the next step cannot advance
+    time any more (the step size has collapsed on finite values). Or, from the
+    first step, when `halt` is set (a start that is not simulated). Otherwise it is
+    `controller`.
+
+    Its state is `controller`'s, whether the last step tried held NaN or inf (its
+    end state or its length), which tells a non-finite failure from a collapse of
+    the step size on finite values, and the time that step tried to reach."""
+
+    controller: diffrax.AbstractAdaptiveStepSizeController
+    min_step: Scalar
+    halt: Bool[Array, ""]
+    # `controller`'s, which diffrax reads from the outermost controller
+    rtol: int | float | Array | np.ndarray
+    atol: int | float | Array | np.ndarray
+    norm: Callable = eqx.field(static=True)
+
+    def __init__(
+        self,
+        controller: diffrax.AbstractAdaptiveStepSizeController,
+        min_step: Scalar,
+        halt: Bool[Array, ""],
+    ):
+        self.controller = controller
+        self.min_step = min_step
+        self.halt = halt
+        self.rtol = controller.rtol
+        self.atol = controller.atol
+        self.norm = controller.norm
+
+    def wrap(self, direction):
+        controller = self.controller.wrap(direction)
+        return eqx.tree_at(lambda c: c.controller, self, controller)
+
+    def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
+        t_next, state = self.controller.init(
+            terms, t0, t1, y0, dt0, args, func, error_order
+        )
+        return t_next, (state, jnp.array(False), jnp.asarray(t0))
+
+    def adapt_step_size(
+        self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
+    ):
+        state, _, _ = controller_state
+        keep, next_t0, next_t1, made_jump, state, result = (
+            self.controller.adapt_step_size(
+                t0, t1, y0, y1_candidate, args, y_error, error_order, state
+            )
+        )
+        finite = jnp.isfinite(t1) & jnp.isfinite(next_t1)
+        for leaf in jax.tree.leaves(y1_candidate):
+            finite = finite & jnp.all(jnp.isfinite(leaf))
+        # `not >=`, `not >`: also true for NaN
+        short = jnp.logical_not(t1 - t0 >= self.min_step)
+        stalled = jnp.logical_not(next_t1 > next_t0)
+        rejected = jnp.logical_not(keep)
+        stop = self.halt | rejected & (short & ~finite | stalled)
+        result = diffrax.RESULTS.where(stop, diffrax.RESULTS.dt_min_reached, result)
+        return keep, next_t0, next_t1, made_jump, (state, ~finite, t1), result
+
+
 @eqx.filter_jit
 def _solve(
     model: AbstractElasticModel,
@@ -244,33 +337,61 @@ def _solve(
     prescribed: PrescribedMotion | None,
     progress_meter: diffrax.AbstractProgressMeter,
 ) -> Trajectory:
-    # A start at the singularity (only possible when traced) is flagged, and a
-    # regular orientation is integrated instead so the batch stays finite.
+    # Starts that are not simulated (only possible when traced; concrete ones are
+    # refused by `simulate`): NaN or inf in the initial state, a start at the
+    # singularity, or before the force samples. Each is flagged, and a regular,
+    # finite state stands in for the one solver step taken, so a batch stays finite.
+    start_finite = jnp.isfinite(y_init).all(axis=1) & jnp.isfinite(ydot_init).all(
+        axis=1
+    )
+    nonfinite0 = ~jnp.all(start_finite)
     reg0 = _regularity(model, y_init)
-    singular0 = jnp.any(jnp.abs(reg0) < gimbal_tol)
+    singular0 = ~nonfinite0 & jnp.any(jnp.abs(reg0) < gimbal_tol)
+    interval = sampled_interval(force)
+    if interval is None:
+        before_samples0 = jnp.array(False)
+    else:
+        before_samples0 = ts[0] < interval[0]
+    halt = nonfinite0 | singular0 | before_samples0
     # The signed measure keeps its initial sign until the singularity is crossed,
     # so `side * measure - tol` changes sign even when one step jumps the band.
     side = jnp.where(reg0 < 0, -1.0, 1.0)
     regular = jnp.asarray(model.rotation.regular_angles)
-    y_start = jnp.where(singular0, y_init.at[:, 3:].set(regular), y_init)
+    y_safe = jnp.where(jnp.isfinite(y_init), y_init, 0.0).at[:, 3:].set(regular)
+    y_start = jnp.where(halt, y_safe, y_init)
+    ydot_start = jnp.where(halt, 0.0, ydot_init)
 
     def gimbal(t, y, args, **kwargs):
         return jnp.min(args[2] * _regularity(args[0], y[0])) - gimbal_tol
 
-    cond_fns = [gimbal]
+    cond_fns = {"gimbal": gimbal}
     if isinstance(model, MobileModel) and model.n_connections > 0:
 
         def collapse(t, y, args, **kwargs):
             return jnp.min(_link_margin(args[0], y[0], link_tol))
 
-        cond_fns.append(collapse)
+        cond_fns["collapse"] = collapse
+    if interval is not None:
+        # The run stops where the samples end, if that is before ts[-1] (like the
+        # others, this event fires where its value falls to zero from above).
+        covered = ts[-1] <= interval[1]
+
+        def samples_end(t, y, args, **kwargs):
+            return jnp.where(covered, 1.0, interval[1] - t)
+
+        cond_fns["samples_end"] = samples_end
     event = diffrax.Event(
-        cond_fns, root_finder=optx.Newton(rtol=1e-12, atol=1e-12), direction=False
+        list(cond_fns.values()),
+        root_finder=optx.Newton(rtol=1e-12, atol=1e-12),
+        direction=False,
     )
+    controller: diffrax.AbstractAdaptiveStepSizeController
     controller = diffrax.PIDController(rtol=rtol, atol=atol)
     jump_ts = jump_times(force)
     if jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
+    resolution = jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(ts[0]), jnp.abs(ts[-1]))
+    controller = _StopFailedSteps(controller, _MIN_STEP_ULPS * resolution, halt)
     zero = jnp.zeros((), dtype=y_init.dtype)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(_vector_field),
@@ -278,9 +399,9 @@ def _solve(
         t0=ts[0],
         t1=ts[-1],
         dt0=dt0,
-        y0=(y_start, ydot_init, zero, zero),
+        y0=(y_start, ydot_start, zero, zero),
         args=(model, force, side, prescribed),
-        saveat=diffrax.SaveAt(ts=ts, t1=True),
+        saveat=diffrax.SaveAt(ts=ts, t1=True, controller_state=True),
         stepsize_controller=controller,
         adjoint=adjoint,
         event=event,
@@ -306,41 +427,71 @@ def _solve(
     y_end = y_all[last]
 
     event_hit = sol.result == diffrax.RESULTS.event_occurred
-    gimbal_hit = event_hit & sol.event_mask[0]
-    collapse_hit = event_hit & (sol.event_mask[1] if len(cond_fns) > 1 else False)
+    hits = {
+        name: event_hit & mask
+        for name, mask in zip(cond_fns, sol.event_mask, strict=True)
+    }
+    no_hit = jnp.array(False)
+    step_failed = sol.result == diffrax.RESULTS.dt_min_reached
+    _, nonfinite_step, t_tried = sol.controller_state
     status = jnp.select(
         [
+            nonfinite0,
             singular0,
-            gimbal_hit,
-            collapse_hit,
+            before_samples0,
+            hits["gimbal"],
+            hits.get("collapse", no_hit),
+            hits.get("samples_end", no_hit),
             sol.result == diffrax.RESULTS.max_steps_reached,
+            step_failed & nonfinite_step,
             ~(event_hit | (sol.result == diffrax.RESULTS.successful)),
         ],
         [
+            Status.NONFINITE,
             Status.GIMBAL_LOCK,
+            Status.OUTSIDE_FORCE_SAMPLES,
             Status.GIMBAL_LOCK,
             Status.LINK_COLLAPSED,
+            Status.OUTSIDE_FORCE_SAMPLES,
             Status.MAX_STEPS_REACHED,
+            Status.NONFINITE,
             Status.SOLVER_FAILED,
         ],
         Status.SUCCESS,
     )
-    if isinstance(model, MobileModel) and len(cond_fns) > 1:
+    if isinstance(model, MobileModel) and "collapse" in hits:
         worst_link = jnp.argmin(_link_margin(model, y_end, link_tol))
     else:
         worst_link = jnp.asarray(-1)
+    # The body whose initial state, or whose force where the run stopped, is not
+    # finite (-1 when both are finite everywhere). A collapsed step ends within a
+    # few units in the last place of `t_end`: the force is evaluated at the time it
+    # tried to reach, and at the last state.
+    t_force = jnp.where(jnp.isfinite(t_tried), t_tried, t_end)
+    applied_end = _applied(model, force, t_force, y_end, ydot_all[last])
+    force_finite = jnp.isfinite(applied_end).all(axis=1)
+    bad_rows = ~(start_finite & force_finite)
+    bad_body = jnp.where(jnp.any(bad_rows), jnp.argmax(bad_rows), -1)
     index = jnp.select(
-        [singular0, gimbal_hit, collapse_hit],
         [
+            nonfinite0,
+            singular0,
+            hits["gimbal"],
+            hits.get("collapse", no_hit),
+            status == Status.NONFINITE,
+        ],
+        [
+            jnp.argmax(~start_finite),
             jnp.argmin(jnp.abs(reg0)),
             jnp.argmin(side * _regularity(model, y_end)),
             worst_link,
+            bad_body,
         ],
         -1,
     )
-    event_time = jnp.where(singular0, ts[0], t_end)
+    event_time = jnp.where(halt, ts[0], t_end)
     failed = status != Status.SUCCESS
-    after = failed & (ts > event_time) | singular0
+    after = failed & (ts > event_time) | halt
 
     def mask(x):
         x = x[:-1]

@@ -13,6 +13,10 @@ class Status(enum.IntEnum):
     LINK_COLLAPSED = 2
     MAX_STEPS_REACHED = 3
     SOLVER_FAILED = 4
+    # NaN or inf in the initial state, the forces, the accelerations or the step size
+    NONFINITE = 5
+    # the run reached a time outside the samples of a `SampledForce`
+    OUTSIDE_FORCE_SAMPLES = 6
 
 
 def status_message(traj) -> str:
@@ -35,8 +39,31 @@ def status_message(traj) -> str:
             f"direction at zero length"
         )
     if status == Status.MAX_STEPS_REACHED:
+        steps = "" if traj.n_steps is None else f" ({int(traj.n_steps)} steps)"
         return (
-            f"the solver reached max_steps at t = {t:.9g} s; raise max_steps, loosen "
-            f"rtol/atol or use an implicit solver for stiff grasps"
+            f"the solver reached max_steps{steps} at t = {t:.9g} s; raise max_steps "
+            f"or loosen rtol/atol, or check that the time span is what you meant and "
+            f"how stiff the grasps are (stiffer grasps need smaller steps)"
         )
-    return f"the solver failed at t = {t:.9g} s (step size too small or NaN)"
+    if status == Status.NONFINITE:
+        where = (
+            f"the initial state or the forces of body {k}"
+            if k >= 0
+            else "the accelerations or the step size"
+        )
+        return (
+            f"NaN or inf stopped the run at t = {t:.9g} s: {where} are not finite "
+            f"there; check the forces (a force callable must return finite values) "
+            f"and the model's parameters"
+        )
+    if status == Status.OUTSIDE_FORCE_SAMPLES:
+        return (
+            f"the run reached t = {t:.9g} s, outside the times sampled by the "
+            f"SampledForce; its samples must cover the simulated times (they are not "
+            f"extrapolated)"
+        )
+    return (
+        f"the solver failed at t = {t:.9g} s: the step size collapsed (a "
+        f"discontinuity or a singularity the solver cannot pass, or a failed implicit "
+        f"step)"
+    )

@@ -30,10 +30,11 @@ class Trajectory(eqx.Module):
     - `dissipated`: energy dissipated since `ts[0]`, $\\int 2R\\,dt$ [J].
     - `model`: the model that was simulated.
     - `status`: a `Status` code (0 = success). After an early stop (gimbal lock, a
-      collapsed link, a solver failure) the samples after `event_time` are NaN.
+      collapsed link, NaN or inf, the end of the force samples, a solver failure)
+      the samples after `event_time` are NaN.
     - `event_time`: the time the run stopped early ($t_1$ when it did not).
-    - `event_index`: the body (gimbal lock) or connection (collapsed link) at fault,
-      -1 otherwise.
+    - `event_index`: the body (gimbal lock; NaN or inf in its initial state or
+      force) or connection (collapsed link) at fault, -1 otherwise.
     - `reaction`: with prescribed coordinates, the generalized forces that realise
       the prescribed motion, shape `(times, bodies, 6)` (zero on the free
       coordinates); `None` otherwise.

@@ -35,12 +35,16 @@ def as_float_array(
     value: Validated[ArrayInput],
     name: str,
     shape: Sequence[int | None] | None = None,
+    *,
+    check_traced: bool = True,
 ) -> Float[np.ndarray, "..."] | Float[Array, "..."]:
     """Convert to a float64 array, checking shape and finiteness.
 
     `shape` entries of `None` accept any length along that axis. Concrete input
     comes back as a NumPy array (convert with `jnp.asarray` when storing it), traced
-    input as a JAX array.
+    input as a JAX array. `check_traced=False` leaves the finiteness of traced input
+    unchecked, for values whose user reports it otherwise (`simulate` reports it in
+    `Trajectory.status`, for each element of a batch on its own).
     """
     arr: np.ndarray | Array
     if isinstance(value, jax.core.Tracer):
@@ -63,6 +67,8 @@ def as_float_array(
     if isinstance(arr, np.ndarray):
         # concrete input: validate with NumPy (no JAX dispatch or compilation)
         return require(arr, np.all(np.isfinite(arr)), f"{name} must be finite", arr)
+    if not check_traced:
+        return arr
     return require(arr, jnp.all(jnp.isfinite(arr)), f"{name} must be finite", arr)
 
 
