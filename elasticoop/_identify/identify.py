@@ -1,7 +1,7 @@
 """`identify`: fit free model parameters to measured motion (output error)."""
 
-import dataclasses
 import time
+from typing import Any
 
 import diffrax
 import equinox as eqx
@@ -20,16 +20,13 @@ from .residuals import (
     make_problem,
     residuals_and_jacobian,
     residuals_by_experiment,
+    with_max_steps,
 )
 from .result import IdentificationResult
+from .step_budget import START_MAX_STEPS, StepBudget
 from .uncertainty import gauss_newton_uncertainty
 
 METHODS = ("levenberg-marquardt", "lbfgs")
-# Solver steps allowed for the simulations at the start, and the step budget of
-# every later simulation as a multiple of the steps the start needed.
-START_MAX_STEPS = 100_000
-STEP_BUDGET_FACTOR = 8
-MIN_BUDGET = 4096
 
 
 def identify(
@@ -94,11 +91,13 @@ def identify(
     - `solver`, `sim_rtol`, `sim_atol`, `max_sim_steps`, `gimbal_tol`, `link_tol`:
       passed to `simulate` (as `solver`, `rtol`, `atol`, `max_steps`, ...).
       `max_sim_steps=None` (default) allows the start's simulations 100 000
-      steps and every later one 8x the steps the start needed (at least 4096,
-      rounded up to a power of 2, so that fits of similar problems share their
-      compiled functions): a trial point that needs more is far off
-      (much stiffer) and is rejected like a failed simulation, instead of
-      costing a long integration.
+      steps and every later one 8x the steps the current point needed (at least
+      4096, rounded up to a power of 2, so that fits of similar problems share
+      their compiled functions; raised, and the fit's functions compiled anew,
+      whenever an accepted point needs more than an eighth of it, up to 100 000):
+      a trial point that needs more is far off (much stiffer) and is rejected
+      like a failed simulation, instead of costing a long integration. A given
+      `max_sim_steps` is the budget of every simulation.
     - `window`, `polyorder`: Savitzky-Golay smoothing of the equation-error start.
     - `rcond`, `max_relative_stderr`: identifiability thresholds (see
       `gauss_newton_uncertainty`).
@@ -107,8 +106,14 @@ def identify(
     `.converged`, `.table`, `.report()`, ...).
 
     A trial step whose simulation fails (gimbal lock, collapsed link, solver
-    failure, NaN) is rejected and the step shortened. A simulation that fails at
-    the start raises `ValueError`.
+    failure, NaN, the step budget) is rejected and the step shortened. A
+    simulation that fails at the start raises `ValueError`. A fit whose every
+    trial step failed ends with `status` `"failed"`, and one whose loss never
+    decreased is not `converged`; `reason` says which failures the trials met.
+    Where the uncertainty cannot be computed at the estimate (e.g. a parameter
+    driven to the end of its range, where $dp/du = 0$), the fit is returned all
+    the same, with NaN standard errors and the cause in `uncertainty.reason`
+    (and a `RuntimeWarning`).
     """
     start_time = time.perf_counter()
     experiments = check_experiments(model, experiments)
@@ -166,8 +171,9 @@ def identify(
     u: np.ndarray | jax.Array
     for label, p in candidates:
         u = free.unconstrained(p)
-        value, ok, steps = _evaluate(jnp.asarray(u), problem)  # inf if failed
-        evaluated.append((float(value), label, p, u, np.asarray(ok), np.asarray(steps)))
+        value, runs = _evaluate(jnp.asarray(u), problem)  # inf if failed
+        ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
+        evaluated.append((float(value), label, p, u, ok, steps))
     # the equation-error start wins ties (it is listed first)
     best = min(range(len(evaluated)), key=lambda k: evaluated[k][0])
     _, label, initial, u0, ok, steps = evaluated[best]
@@ -179,30 +185,26 @@ def identify(
         )
     if not np.all(ok):
         _raise_start_failure(problem, ok)
-    if max_sim_steps is None:
-        # Trial points that need many more steps than the start are far off (much
-        # stiffer, or lightly damped at high frequency): treat them as failed
-        # rather than integrating them to the end.
-        budget = STEP_BUDGET_FACTOR * int(np.max(steps))
-        budget = min(START_MAX_STEPS, max(MIN_BUDGET, 1 << (budget - 1).bit_length()))
-        options = dataclasses.replace(options, max_steps=budget)
-        problem = make_problem(model, free, experiments, options)
-        notes.append(
-            f"simulations limited to {budget} solver steps "
-            f"({STEP_BUDGET_FACTOR}x those at the start); a trial point needing "
-            f"more is rejected"
-        )
-    common = dict(
+    # Trial points that need many more steps than the current point are far off
+    # (much stiffer, or lightly damped at high frequency): treat them as failed
+    # rather than integrating them to the end.
+    budget = StepBudget(adaptive=max_sim_steps is None)
+    problem = budget.start(problem, int(np.max(steps)))
+    common: dict[str, Any] = dict(
         xtol=xtol,
         ftol=ftol,
         max_steps=max_steps,
         progress=progress,
         n_experiments=len(experiments),
+        budget=budget,
     )
     if optimizer is None:
         trace = levenberg_marquardt(problem, u0, **common)
     else:
         trace = optax_minimise(problem, u0, optimizer, **common)
+    notes += budget.notes
+    if budget.raised_to is not None:
+        problem = with_max_steps(problem, budget.raised_to)
     if not trace.loss_history:
         raise ValueError(
             f"the simulation with sensitivities fails at the start, although the "
@@ -216,13 +218,23 @@ def identify(
     u = jnp.asarray(trace.u)
     dp_du = np.asarray(jax.jacfwd(free.physical)(u)).diagonal()
     estimate = np.asarray(free.physical(u))
+    flat = [n for n, d in zip(free.names, dp_du) if not (np.isfinite(d) and d != 0)]
+    if flat:
+        notes.append(
+            f"dp/du is 0 or not finite at the estimate of {', '.join(flat)} (the "
+            f"parameter reached the end of its range, e.g. 0 for a log-parameter): "
+            f"no standard errors in physical units"
+        )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        jacobian_p = trace.jacobian / dp_du[None, :]
     unc = gauss_newton_uncertainty(
         trace.residual,
-        trace.jacobian / dp_du[None, :],
+        jacobian_p,
         estimate,
         noise_known=experiments[0].sigma is not None,
         rcond=rcond,
         max_relative_stderr=max_relative_stderr,
+        names=free.names,
     )
     fitted = free.apply(model, u)
     return IdentificationResult(
@@ -286,10 +298,10 @@ def _within_range(free, guess, fallback):
 
 @eqx.filter_jit
 def _evaluate(u, problem):
-    """The loss at `u`, and per experiment whether it simulated and its steps."""
-    parts, ok, steps = residuals_by_experiment(u, problem)
+    """The loss at `u`, and how its simulations went (`Runs`)."""
+    parts, runs = residuals_by_experiment(u, problem)
     value = 0.5 * sum(jnp.sum(r**2) for r in parts)
-    return value, ok, steps
+    return value, runs
 
 
 def _raise_start_failure(problem, ok):

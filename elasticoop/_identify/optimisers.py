@@ -19,6 +19,7 @@
   finite.
 """
 
+import collections
 import dataclasses
 import time
 from typing import Any, TypeAlias
@@ -31,14 +32,19 @@ import numpy as np
 import optax
 import optimistix as optx
 
+from .._status import Status
 from .residuals import (
     FitProblem,
+    Runs,
     loss,
+    loss_and_runs,
     residuals,
-    residuals_and_jacobian,
+    residuals_by_experiment,
+    residuals_jacobian_and_runs,
     with_jacobian_loss_limit,
     with_scaling,
 )
+from .step_budget import StepBudget
 
 # Marquardt's initial damping: lambda_0 = TAU * max diag(J^T J) at the start.
 TAU = 1e-3
@@ -60,6 +66,11 @@ class Trace:
     n_simulations: int = 0
     n_rejected: int = 0
     n_failed_trials: int = 0
+    n_trials: int = 0  # points evaluated after the start
+    # why trial simulations failed: description -> number of trials
+    failures: collections.Counter = dataclasses.field(
+        default_factory=collections.Counter
+    )
     status: str = "max_steps"
     reason: str = ""
     wall_time: float = 0.0
@@ -106,13 +117,13 @@ def _lm_parts():
     return optx.ClassicalTrustRegion(), optx.DampedNewtonDescent(linear_solver=lx.QR())
 
 
-def _f_info(v, problem) -> _ResidualJac:
+def _f_info(v, problem) -> tuple[_ResidualJac, Runs]:
     """Residuals and forward-mode Jacobian with respect to $v$, where
-    $u = $ `u_offset + u_scale * v`."""
+    $u = $ `u_offset + u_scale * v`, and how the simulations went."""
     u = problem.u_offset + problem.u_scale * v
-    r, J = residuals_and_jacobian(u, problem)
+    r, J, runs = residuals_jacobian_and_runs(u, problem)
     J = lx.MatrixLinearOperator(J * problem.u_scale[None, :])
-    return optx.FunctionInfo.ResidualJac(r, J)
+    return optx.FunctionInfo.ResidualJac(r, J), runs
 
 
 @eqx.filter_jit
@@ -138,13 +149,14 @@ def _lm_step(search, descent, state: _LMState, problem):
     """Simulate at the trial point, let the trust region accept or reject it, and
     propose the next trial point. Returns the new state, the loss and its gradient
     at the (new) accepted point, whether the trial was accepted, the loss at the
-    trial point ($+\\infty$ where a simulation failed) and the result code."""
+    trial point ($+\\infty$ where a simulation failed), the result code and how
+    the trial's simulations went (`Runs`)."""
     # Trial points with a higher loss than the accepted one are rejected anyway:
     # skip their Jacobians (the first evaluation always computes it).
     limit = jnp.where(
         state.first_step, problem.jacobian_loss_limit, state.f_info.as_min()
     )
-    f_eval_info = _f_info(state.y_eval, with_jacobian_loss_limit(problem, limit))
+    f_eval_info, runs = _f_info(state.y_eval, with_jacobian_loss_limit(problem, limit))
     step_size, accept, search_result, search_state = search.step(
         state.first_step,
         state.y,
@@ -175,7 +187,7 @@ def _lm_step(search, descent, state: _LMState, problem):
         descent_state=descent_state,
     )
     value, grad = f_info.as_min(), f_info.compute_grad()
-    return state, value, grad, accept, f_eval_info.as_min(), result
+    return state, value, grad, accept, f_eval_info.as_min(), result, runs
 
 
 def _lm_final(state: _LMState):
@@ -191,13 +203,70 @@ def _small_step(u, u_new, value, value_new, xtol, ftol) -> bool:
     return bool(du <= xtol or (value - value_new) <= ftol * abs(value))
 
 
+def _record_failure(trace: Trace, runs: Runs, problem: FitProblem) -> None:
+    """Count a trial whose simulations failed, by why they failed."""
+    trace.n_failed_trials += 1
+    why = set()
+    for ok, status in zip(np.asarray(runs.ok), np.asarray(runs.status)):
+        if ok:
+            continue
+        if status == Status.MAX_STEPS_REACHED:
+            why.add(
+                f"reached the step budget of {problem.options.max_steps} solver steps"
+            )
+        elif status == Status.SUCCESS:
+            why.add("gave non-finite values")
+        else:
+            why.add(f"stopped with status {Status(int(status)).name}")
+    trace.failures.update(why or {"gave a non-finite loss"})
+
+
+def _conclude(trace: Trace) -> Trace:
+    """Make `status` and `reason` say what the trials met and whether the loss
+    decreased: a fit whose every trial failed has `status` `"failed"`, and one whose
+    loss never decreased is not `"converged"` (`"stalled"`)."""
+    reasons = [trace.reason] if trace.reason else []
+    failures = ", ".join(f"{n} {why}" for why, n in trace.failures.most_common())
+    decreased = (
+        len(trace.loss_history) > 1 and trace.loss_history[-1] < trace.loss_history[0]
+    )
+    if trace.n_trials and trace.n_failed_trials == trace.n_trials:
+        trace.status = "failed"
+        reasons.insert(
+            0,
+            f"every trial step ({trace.n_trials}) failed to simulate ({failures}); "
+            f"the loss never moved from the start",
+        )
+    else:
+        if trace.n_failed_trials:
+            reasons.append(
+                f"{trace.n_failed_trials} of {trace.n_trials} trial steps failed to "
+                f"simulate ({failures})"
+            )
+        if not decreased and trace.loss_history:
+            if trace.status == "converged":
+                trace.status = "stalled"
+            reasons.append("no step lowered the loss from the start")
+    trace.reason = "; ".join(reasons)
+    return trace
+
+
 def levenberg_marquardt(
-    problem: FitProblem, u0, *, xtol, ftol, max_steps, progress, n_experiments
+    problem: FitProblem,
+    u0,
+    *,
+    xtol,
+    ftol,
+    max_steps,
+    progress,
+    n_experiments,
+    budget: StepBudget,
 ) -> Trace:
     """Minimise $\\tfrac12|r(u)|^2$ by Levenberg-Marquardt (optimistix).
 
     Every solver step simulates all experiments once (with sensitivities) at a
-    trial point; a trial that does not lower the loss is rejected."""
+    trial point; a trial that does not lower the loss is rejected. After every
+    accepted step the simulations' step budget follows the new point (`budget`)."""
     start = time.perf_counter()
     # The convergence test is ours (`_small_step`), not optimistix's Cauchy test.
     search, descent = _lm_parts()
@@ -223,14 +292,22 @@ def levenberg_marquardt(
     u0_arr = u
     state = _lm_init(search, descent, jnp.zeros_like(u), problem)
     show = _Progress(progress, "Levenberg-Marquardt, forward-mode Jacobian")
+    # Rejected trials in a row whose simulations succeeded: failed ones (a trial
+    # point far off) say nothing about the minimum, only that the step was long.
+    # Likewise, after a failed trial the accepted steps are small because the
+    # failures shrank the trust region: they are no test of convergence until a
+    # trial is again rejected for its loss (the region is bounded by the loss).
     rejected_in_row = 0
+    shrunk_by_failures = False
     for _ in range(max_steps):
         u_prev = u
-        state, value, gnorm, accepted, trial_loss, result = _lm_step(
+        first = trace.n_iterations == 0
+        state, value, gnorm, accepted, trial_loss, result, runs = _lm_step(
             search, descent, state, problem
         )
         u = u0_arr + u_scale * state.y
         trace.n_simulations += n_experiments
+        trace.n_trials += not first
         value = float(value) / scale**2
         gnorm = float(np.linalg.norm(np.asarray(gnorm) / u_scale)) / scale**2
         if bool(accepted):
@@ -239,16 +316,23 @@ def levenberg_marquardt(
             trace.loss_history.append(value)
             trace.grad_norms.append(gnorm)
             show(trace.n_iterations, value, gnorm)
+            problem = budget.follow(
+                problem, int(np.max(np.asarray(runs.steps))), trace.n_iterations
+            )
             last = trace.loss_history[-2] if len(trace.loss_history) > 1 else None
-            if last is not None and _small_step(u_prev, u, last, value, xtol, ftol):
+            tested = last is not None and not shrunk_by_failures
+            if tested and _small_step(u_prev, u, last, value, xtol, ftol):
                 trace.status = "converged"
                 trace.reason = f"last step below xtol = {xtol} or ftol = {ftol}"
                 break
         else:
-            rejected_in_row += 1
             trace.n_rejected += 1
-            if not np.isfinite(float(trial_loss)):
-                trace.n_failed_trials += 1
+            if np.isfinite(float(trial_loss)):
+                rejected_in_row += 1
+                shrunk_by_failures = False
+            else:
+                shrunk_by_failures = True
+                _record_failure(trace, runs, problem)
                 show(trace.n_iterations, value, gnorm, "trial failed")
         if result != optx.RESULTS.successful:
             trace.status = "failed"
@@ -268,7 +352,7 @@ def levenberg_marquardt(
     trace.jacobian = Jv / scale / u_scale[None, :]
     trace.u = np.asarray(u)
     trace.wall_time = time.perf_counter() - start
-    return trace
+    return _conclude(trace)
 
 
 # optax's updates mix integer step counts with floats (e.g. Adam's bias correction
@@ -280,7 +364,15 @@ def _optax_promotion():
 
 @eqx.filter_jit
 def _value_and_grad(u, problem):
-    return jax.value_and_grad(loss)(u, problem)
+    """The loss, its gradient and how the simulations went."""
+    (value, runs), grad = jax.value_and_grad(loss_and_runs, has_aux=True)(u, problem)
+    return value, grad, runs
+
+
+@eqx.filter_jit
+def _runs_at(u, problem) -> Runs:
+    """How the simulations at `u` go (no derivatives)."""
+    return residuals_by_experiment(u, problem)[1]
 
 
 @eqx.filter_jit
@@ -317,9 +409,12 @@ def optax_minimise(
     max_steps,
     progress,
     n_experiments,
+    budget: StepBudget,
 ) -> Trace:
     """Minimise $\\tfrac12|r(u)|^2$ with an optax optimiser and reverse-mode
-    gradients, until a step is small (`_small_step`)."""
+    gradients, until a step is small (`_small_step`) without raising the loss.
+    After every step the simulations' step budget follows the new point (`budget`;
+    with a line search this costs one simulation without derivatives there)."""
     start = time.perf_counter()
     u = jnp.asarray(u0)
     trace = Trace(u=np.asarray(u))
@@ -332,9 +427,10 @@ def optax_minimise(
     )
     linesearch = optax.tree.get(state, "value") is not None
     if not linesearch:
-        value, grad = _value_and_grad(u, problem)
+        value, grad, _ = _value_and_grad(u, problem)
         trace.n_simulations += n_experiments
     for _ in range(max_steps):
+        halved = False
         if linesearch:
             u_new, state, value, grad, steps = _linesearch_step(
                 optimizer, u, state, problem
@@ -343,6 +439,7 @@ def optax_minimise(
             trace.n_simulations += n_experiments * (
                 int(steps) + (trace.n_iterations == 0)
             )
+            trace.n_trials += int(steps)
             if trace.n_iterations == 0 and not np.isfinite(float(value)):
                 break  # the start failed: `identify` reports it
             value_new = float(optax.tree.get(state, "value"))
@@ -350,18 +447,23 @@ def optax_minimise(
                 trace.status = "stalled"
                 trace.reason = "the line search found no finite lower loss"
                 break
+            if budget.adaptive:
+                runs = _runs_at(u_new, problem)
+                trace.n_simulations += n_experiments
         else:
             if not np.isfinite(float(value)):
                 break  # the start failed: `identify` reports it
             updates, state = _plain_update(optimizer, u, state, grad)
             for _halving in range(MAX_HALVINGS):
                 u_new = u + updates
-                value_new, grad_new = _value_and_grad(u_new, problem)
+                value_new, grad_new, runs = _value_and_grad(u_new, problem)
                 trace.n_simulations += n_experiments
+                trace.n_trials += 1
                 if np.isfinite(float(value_new)):
                     break
-                trace.n_failed_trials += 1
                 trace.n_rejected += 1
+                _record_failure(trace, runs, problem)
+                halved = True
                 updates = 0.5 * updates
                 show(trace.n_iterations, float(value), 0.0, "trial failed, halved")
             else:
@@ -370,12 +472,25 @@ def optax_minimise(
                 break
         if trace.n_iterations == 0:
             trace.loss_history.append(float(value))
+        if linesearch and float(value_new) > float(value):
+            trace.status = "stalled"
+            trace.reason = "the line search found no lower loss"
+            break
         trace.n_iterations += 1
         gnorm = float(jnp.linalg.norm(grad))
         trace.loss_history.append(float(value_new))
         trace.grad_norms.append(gnorm)
         show(trace.n_iterations, float(value_new), gnorm)
-        done = _small_step(u, u_new, float(value), float(value_new), xtol, ftol)
+        if budget.adaptive:
+            steps_new = int(np.max(np.asarray(runs.steps)))
+            problem = budget.follow(problem, steps_new, trace.n_iterations)
+        # a step that raised the loss, or one halved because the full one failed,
+        # is no sign of convergence: a plain optimiser (no line search) goes on
+        done = (
+            float(value_new) <= float(value)
+            and not halved
+            and _small_step(u, u_new, float(value), float(value_new), xtol, ftol)
+        )
         u = u_new
         if not linesearch:
             value, grad = value_new, grad_new
@@ -387,4 +502,4 @@ def optax_minimise(
         trace.reason = f"reached max_steps = {max_steps} iterations"
     trace.u = np.asarray(u)
     trace.wall_time = time.perf_counter() - start
-    return trace
+    return _conclude(trace)

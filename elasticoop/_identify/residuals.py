@@ -13,11 +13,14 @@ of that trial point is infinite, so a line search or trust region rejects it and
 shortens the step instead of failing.
 """
 
+import dataclasses
+
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Bool, Int
 
 from .._options import SimulationOptions
 from .._simulate import simulate
@@ -88,6 +91,13 @@ def with_scaling(problem: FitProblem, scale, u_offset, u_scale) -> FitProblem:
     )
 
 
+def with_max_steps(problem: FitProblem, max_steps: int) -> FitProblem:
+    """The same problem with every simulation allowed `max_steps` solver steps (a
+    static setting: the functions of the fit compile anew)."""
+    options = dataclasses.replace(problem.options, max_steps=int(max_steps))
+    return dataclasses.replace(problem, options=options)
+
+
 def with_jacobian_loss_limit(problem: FitProblem, limit) -> FitProblem:
     """The same problem computing Jacobians only where the loss (of the scaled
     residuals) is at most `limit` (a traced value: no recompilation)."""
@@ -112,13 +122,24 @@ def _simulate_batch(model, data: _Data, options: SimulationOptions, adjoint):
     return jax.vmap(one)(data.experiments)
 
 
-def residuals_by_experiment(u, problem: FitProblem, adjoint=None):
+class Runs(eqx.Module):
+    """How the simulations of one evaluation went, one entry per experiment (in
+    batch order): whether it succeeded with finite residuals, its `Status` code and
+    the solver steps it took."""
+
+    ok: Bool[Array, " experiments"]
+    status: Int[Array, " experiments"]
+    steps: Int[Array, " experiments"]
+
+
+def residuals_by_experiment(
+    u, problem: FitProblem, adjoint=None
+) -> tuple[list[jax.Array], Runs]:
     """Residuals per batch, each `(batch, times, bodies, 6)` (or twice that length
-    along the last axis with measured $\\dot Y$), whether each simulation
-    succeeded and how many solver steps it took, both `(experiments,)` in batch
-    order."""
+    along the last axis with measured $\\dot Y$), and how each simulation went
+    (`Runs`)."""
     model = problem.free.apply(problem.model, u)
-    out, ok_all, steps = [], [], []
+    out, ok_all, status, steps = [], [], [], []
     for data in problem.batches:
         traj = _simulate_batch(model, data, problem.options, adjoint)
         r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
@@ -131,13 +152,17 @@ def residuals_by_experiment(u, problem: FitProblem, adjoint=None):
         r = jnp.where(ok[:, None, None, None], problem.scale * r, jnp.inf)
         out.append(r)
         ok_all.append(ok)
+        status.append(traj.status)
         steps.append(traj.n_steps)
-    return out, jnp.concatenate(ok_all), jnp.concatenate(steps)
+    runs = Runs(
+        jnp.concatenate(ok_all), jnp.concatenate(status), jnp.concatenate(steps)
+    )
+    return out, runs
 
 
 def residuals(u, problem: FitProblem, adjoint=None) -> jax.Array:
     """All residuals as one flat vector ($+\\infty$ for failed simulations)."""
-    parts, _, _ = residuals_by_experiment(u, problem, adjoint)
+    parts, _ = residuals_by_experiment(u, problem, adjoint)
     return jnp.concatenate([r.reshape(-1) for r in parts])
 
 
@@ -148,7 +173,21 @@ def loss(u, problem: FitProblem) -> jax.Array:
     return 0.5 * jnp.sum(r**2)
 
 
+def loss_and_runs(u, problem: FitProblem) -> tuple[jax.Array, Runs]:
+    """`loss` and how the simulations went (`Runs`, an auxiliary output for
+    `jax.value_and_grad(..., has_aux=True)`)."""
+    parts, runs = residuals_by_experiment(u, problem)
+    return 0.5 * jnp.sum(jnp.stack([jnp.sum(r**2) for r in parts])), runs
+
+
 def residuals_and_jacobian(u, problem: FitProblem):
+    """$r(u)$ and $J = \\partial r/\\partial u$ (`residuals_jacobian_and_runs`
+    without the `Runs`)."""
+    r, J, _ = residuals_jacobian_and_runs(u, problem)
+    return r, J
+
+
+def residuals_jacobian_and_runs(u, problem: FitProblem):
     """$r(u)$ and $J = \\partial r/\\partial u$ by forward-mode sensitivities
     (`jax.jacfwd` through `simulate` with `diffrax.ForwardMode()`): one integration
     carrying one tangent per free parameter.
@@ -157,13 +196,15 @@ def residuals_and_jacobian(u, problem: FitProblem):
     fails ($+\\infty$ residuals, e.g. a trial point beyond the step budget), or
     the loss $\\tfrac12\\sum r^2$ exceeds `problem.jacobian_loss_limit` (a trial
     point that a descent method rejects anyway), the costly integration with
-    sensitivities is skipped and $J$ is returned as zero."""
+    sensitivities is skipped and $J$ is returned as zero. The `Runs` are those of
+    the simulations without sensitivities."""
 
     def fn(v):
         r = residuals(v, problem, diffrax.ForwardMode())
         return r, r
 
-    r = residuals(u, problem)
+    parts, runs = residuals_by_experiment(u, problem)
+    r = jnp.concatenate([x.reshape(-1) for x in parts])
     value = 0.5 * jnp.sum(r**2)
     # a relative margin for round-off between this sum and the solver's own
     wanted = jnp.all(jnp.isfinite(r)) & (
@@ -174,7 +215,7 @@ def residuals_and_jacobian(u, problem: FitProblem):
         lambda: jax.jacfwd(fn, has_aux=True)(u)[0],
         lambda: jnp.zeros(r.shape + u.shape, r.dtype),
     )
-    return r, J
+    return r, J, runs
 
 
 @eqx.filter_custom_jvp

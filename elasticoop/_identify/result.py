@@ -33,13 +33,16 @@ class IdentificationResult:
     - `stderr`: standard errors, in the structure of `where(model)` (inf for a
       parameter the data cannot determine).
     - `loss_history`: loss $\\tfrac12\\sum r^2$ after each accepted iteration.
-    - `converged`: whether the convergence test was met.
-    - `status`: `"converged"`, `"max_steps"`, `"stalled"` or `"failed"`; `reason`
-      says why in words.
+    - `converged`: whether the convergence test was met after the loss decreased.
+    - `status`: `"converged"`, `"max_steps"`, `"stalled"` (no further progress, or
+      no step lowered the loss from the start) or `"failed"` (every trial step's
+      simulation failed, or the solver failed); `reason` says why in words,
+      including how many trial simulations failed and why.
     - `names`, `estimate`, `initial`, `start`: the free parameters' names, fitted
       values, values the optimiser started from, and values in the model passed in.
     - `uncertainty`: Fisher information, covariance, correlations, singular
-      directions and the per-parameter `identifiable` flags.
+      directions and the per-parameter `identifiable` flags (NaN, with
+      `uncertainty.reason` saying why, where they could not be computed).
     - `n_iterations`, `n_simulations`, `n_rejected`, `n_failed_trials`: accepted
       iterations, simulations of single experiments (a simulation carrying
       forward-mode sensitivities or followed by a reverse-mode pass counts once),
@@ -109,13 +112,16 @@ class IdentificationResult:
             f"noise scale {self.uncertainty.noise_scale:.3g}",
         ]
         lines += [f"  note: {n}" for n in self.notes]
+        if self.uncertainty.reason:
+            lines.append(f"  {self.uncertainty.reason}")
         width = max(len("parameter"), *(len(n) for n in self.names))
         lines.append(
             f"  {'parameter':<{width}}  {'estimate':>12}  {'std. error':>11}  "
             f"{'rel.':>8}  {'initial':>12}  "
         )
         for row in self.table:
-            flag = "" if row.identifiable else "  NOT IDENTIFIABLE"
+            known = not self.uncertainty.reason
+            flag = "" if row.identifiable or not known else "  NOT IDENTIFIABLE"
             lines.append(
                 f"  {row.name:<{width}}  {row.estimate:12.6g}  {row.stderr:11.4g}  "
                 f"{row.relative_stderr:8.2%}  {row.initial:12.6g}{flag}"
@@ -134,7 +140,7 @@ class IdentificationResult:
                 for i, j in pairs
             ]
         n_bad = int(np.sum(~self.identifiable))
-        if n_bad:
+        if n_bad and not self.uncertainty.reason:
             lines.append(
                 f"  {n_bad} parameter(s) not identifiable from these experiments "
                 f"(null or poorly determined directions of the Fisher information)"

@@ -15,9 +15,13 @@ relative standard error exceeds `max_relative_stderr`. A parameter is flagged
 when more than `NULL_SHARE` of it lies in the null directions (its standard error
 is then infinite), or when its own relative standard error exceeds
 `max_relative_stderr`.
+
+Where this cannot be computed (non-finite residuals, Jacobian or estimates, or a
+failed decomposition), every quantity is NaN and `Uncertainty.reason` says why.
 """
 
 import dataclasses
+import warnings
 
 import numpy as np
 
@@ -37,6 +41,8 @@ class Uncertainty:
     - `singular_values`, `directions`: $S_i / s$ and $v_i$ (columns) of the
       relative Jacobian; `relative_stderr_directions` $= s/S_i$.
     - `identifiable`: per-parameter flag; `noise_scale`: $s$.
+    - `reason`: empty when the uncertainty was computed; otherwise why it could
+      not be (all the fields above are then NaN, `identifiable` False).
     """
 
     stderr: np.ndarray
@@ -47,6 +53,7 @@ class Uncertainty:
     directions: np.ndarray
     identifiable: np.ndarray
     noise_scale: float
+    reason: str = ""
 
     @property
     def relative_stderr_directions(self) -> np.ndarray:
@@ -61,6 +68,7 @@ def gauss_newton_uncertainty(
     noise_known: bool,
     rcond: float = 1e-8,
     max_relative_stderr: float = 0.5,
+    names=None,
 ) -> Uncertainty:
     """Uncertainty of the estimates $p$ from whitened residuals and their Jacobian.
 
@@ -73,36 +81,53 @@ def gauss_newton_uncertainty(
     - `rcond`: singular values below `rcond` times the largest are null directions.
     - `max_relative_stderr`: parameters with a larger relative standard error are
       flagged as not identifiable from these data.
+    - `names`: the parameters' names, for messages (default `p[k]`).
+
+    Non-finite inputs, or a singular value decomposition that fails, give an
+    `Uncertainty` of NaN whose `reason` says why, with a `RuntimeWarning`.
     """
     residual = np.asarray(residual, dtype=np.float64)
     J = np.asarray(jacobian_p, dtype=np.float64)
     p = np.asarray(p, dtype=np.float64)
     n_res, n_p = J.shape
+    names = [f"p[{k}]" for k in range(n_p)] if names is None else list(names)
+    reason = _non_finite(residual, J, p, names)
+    if reason:
+        return _unavailable(n_p, reason)
     used = np.count_nonzero(np.any(J != 0, axis=1) | (residual != 0))
     if noise_known:
         s = 1.0
     else:
         dof = max(used - n_p, 1)
-        s = float(np.sqrt(residual @ residual / dof))
+        s = _norm(residual) / np.sqrt(dof)
         s = max(s, np.finfo(np.float64).tiny)
     scale = np.where(p != 0, np.abs(p), 1.0)
     Jq = J * scale[None, :]
-    _, S, Vt = np.linalg.svd(Jq, full_matrices=False)
+    try:
+        _, S, Vt = np.linalg.svd(Jq, full_matrices=False)
+    except np.linalg.LinAlgError as error:
+        return _unavailable(
+            n_p, f"the singular value decomposition of the Jacobian failed: {error}"
+        )
     V = Vt.T
     top = S[0] if S.size else 0.0
     null = S <= rcond * top
     null_share = np.sum(V[:, null] ** 2, axis=1)
     in_null = null_share > NULL_SHARE
     keep = ~null
-    inv = np.zeros_like(S)
-    inv[keep] = 1.0 / S[keep] ** 2
-    cov_q = s**2 * (V * inv[None, :]) @ V.T
-    cov = cov_q * np.outer(scale, scale)
-    var = np.diag(cov).copy()
-    stderr = np.sqrt(np.maximum(var, 0.0))
+    # cov_q = s^2 W W^T with W = V_keep diag(1/S_keep); W is scaled to a largest
+    # entry of 1 first, so that neither the standard errors nor the correlations
+    # over- or underflow for extreme S (e.g. sigma far below the noise)
+    W = V[:, keep] / S[keep][None, :]
+    size = float(np.max(np.abs(W))) if W.size else 0.0
+    unit = W / size if size > 0 else W
+    unit_cov = unit @ unit.T
+    unit_stderr = np.sqrt(np.diag(unit_cov))
+    stderr = s * size * unit_stderr * scale
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        corr = unit_cov / np.outer(unit_stderr, unit_stderr)
+        cov = corr * np.outer(stderr, stderr)
     stderr[in_null] = np.inf
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(stderr, stderr)
     corr[in_null, :] = np.nan
     corr[:, in_null] = np.nan
     cov[in_null, :] = np.nan
@@ -118,4 +143,46 @@ def gauss_newton_uncertainty(
         directions=V,
         identifiable=identifiable,
         noise_scale=s,
+    )
+
+
+def _norm(x) -> float:
+    """$|x|$ without overflow or underflow of the squares."""
+    size = float(np.max(np.abs(x))) if x.size else 0.0
+    return size * float(np.sqrt(np.sum((x / size) ** 2))) if size > 0 else 0.0
+
+
+def _non_finite(residual, J, p, names) -> str:
+    """Why the inputs cannot give an uncertainty ("" when they can)."""
+    problems = []
+    bad = [n for n, x in zip(names, p) if not np.isfinite(x)]
+    if bad:
+        problems.append(f"the estimates of {', '.join(bad)} are not finite")
+    bad = [n for n, column in zip(names, J.T) if not np.all(np.isfinite(column))]
+    if bad:
+        problems.append(f"the Jacobian has non-finite entries for {', '.join(bad)}")
+    if not np.all(np.isfinite(residual)):
+        problems.append(
+            f"{int(np.sum(~np.isfinite(residual)))} residuals are not finite"
+        )
+    return "; ".join(problems)
+
+
+def _unavailable(n_p: int, reason: str) -> Uncertainty:
+    """An `Uncertainty` of NaN that says why, announced by a `RuntimeWarning`."""
+    reason = f"uncertainty not computed: {reason}"
+    warnings.warn(
+        f"{reason}; its standard errors are NaN", RuntimeWarning, stacklevel=3
+    )
+    vector, matrix = np.full(n_p, np.nan), np.full((n_p, n_p), np.nan)
+    return Uncertainty(
+        stderr=vector,
+        covariance=matrix,
+        correlation=matrix.copy(),
+        fisher=matrix.copy(),
+        singular_values=vector.copy(),
+        directions=matrix.copy(),
+        identifiable=np.zeros(n_p, dtype=bool),
+        noise_scale=np.nan,
+        reason=reason,
     )

@@ -1,0 +1,71 @@
+"""The step budget of the simulations during a fit.
+
+A trial point that needs many more solver steps than the point the fit stands at
+is far off (much stiffer, or lightly damped at high frequency): rather than
+integrating it to the end, its simulation stops at the budget and the trial is
+rejected like a failed simulation. The budget follows the fit: it is set from the
+steps the start needs and raised whenever an accepted point needs more than
+1/`STEP_BUDGET_FACTOR` of it, so that it never keeps the fit from points that
+need more steps than the start did.
+"""
+
+import dataclasses
+import math
+
+from .residuals import FitProblem, with_max_steps
+
+# Solver steps allowed for the simulations at the start, and the most any later
+# simulation is allowed.
+START_MAX_STEPS = 100_000
+# The budget is this multiple of the steps the current point needs ...
+STEP_BUDGET_FACTOR = 8
+# ... and at least this (trials close to a cheap point cost little anyway).
+MIN_BUDGET = 4096
+
+
+def step_budget(steps: int) -> int:
+    """The budget of trial simulations near a point whose simulations took `steps`
+    solver steps: `STEP_BUDGET_FACTOR` times `steps`, at least `MIN_BUDGET`,
+    rounded up to a power of 2 (fits of similar problems share their compiled
+    functions, and a raise at least doubles it), at most `START_MAX_STEPS`."""
+    wanted = max(MIN_BUDGET, math.ceil(STEP_BUDGET_FACTOR * int(steps)))
+    return min(START_MAX_STEPS, 1 << (wanted - 1).bit_length())
+
+
+@dataclasses.dataclass
+class StepBudget:
+    """The step budget of a fit: fixed (`adaptive=False`: the caller's
+    `max_sim_steps`), or set by `start` and raised by `follow` as the fit moves to
+    points that need more steps. `notes` says what was set, `raised_to` is the last
+    budget `follow` set (None: never raised)."""
+
+    adaptive: bool
+    notes: list[str] = dataclasses.field(default_factory=list)
+    raised_to: int | None = None
+
+    def start(self, problem: FitProblem, steps: int) -> FitProblem:
+        """`problem` with the budget for a start whose simulations took `steps`
+        solver steps (unchanged when the budget is fixed)."""
+        if not self.adaptive:
+            return problem
+        budget = step_budget(steps)
+        self.notes.append(
+            f"simulations limited to {budget} solver steps ({STEP_BUDGET_FACTOR}x "
+            f"those at the start, at least {MIN_BUDGET}, raised as the fit reaches "
+            f"points that need more, up to {START_MAX_STEPS}); a trial point "
+            f"needing more is rejected"
+        )
+        return with_max_steps(problem, budget)
+
+    def follow(self, problem: FitProblem, steps: int, iteration: int) -> FitProblem:
+        """`problem` with the budget that an accepted point needing `steps` solver
+        steps calls for (the same problem when its budget suffices)."""
+        current = problem.options.max_steps
+        if not self.adaptive or step_budget(steps) <= current:
+            return problem
+        budget = self.raised_to = step_budget(steps)
+        self.notes.append(
+            f"step budget raised from {current} to {budget} at iteration "
+            f"{iteration}, where the simulations took {steps} solver steps"
+        )
+        return with_max_steps(problem, budget)
