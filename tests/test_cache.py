@@ -125,6 +125,7 @@ def test_jax_stores_checked_executables_only_in_nan_mode(tmp_path):
     assert _stored(tmp_path, "jit_checked_nan")
 
 
+@pytest.mark.slow
 def test_simulation_is_loaded_from_the_cache_by_a_fresh_process(tmp_path):
     scenario = tmp_path / "disc.toml"
     scenario.write_text(SCENARIO)

@@ -68,6 +68,7 @@ def test_check_accepts_every_example(examples_dir, capsys):
 
 
 @pytest.mark.parametrize("name", EXAMPLES)
+@pytest.mark.slow
 def test_run_every_example(examples_dir, tmp_path, capsys, name):
     outdir = tmp_path / "out"
     plots = [] if name == "beam_lift" else ["--no-plots"]
@@ -140,6 +141,7 @@ def test_usage_errors(capsys, tmp_path):
     assert "no such scenario file" in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_simulation_stopping_early_exits_3_with_partial_results(tmp_path, capsys):
     path = tmp_path / "gimbal.toml"
     path.write_text(GIMBAL)
@@ -175,6 +177,7 @@ def test_progress_bar_only_when_not_quiet_and_supported(monkeypatch):
     assert _common.progress_overrides(loud) == {}
 
 
+@pytest.mark.slow
 def test_console_entry_point_in_a_subprocess(examples_dir, tmp_path):
     good = subprocess.run(
         [
@@ -204,6 +207,7 @@ def test_console_entry_point_in_a_subprocess(examples_dir, tmp_path):
     assert "Traceback" not in out.stderr
 
 
+@pytest.mark.slow
 def test_modes_of_the_held_beam(examples_dir, tmp_path, capsys):
     outdir = tmp_path / "modes"
     code = main(["modes", str(examples_dir / "beam_lift.toml"), "-o", str(outdir)])

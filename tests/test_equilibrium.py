@@ -41,6 +41,7 @@ def configuration():
     )
 
 
+@pytest.mark.slow
 def test_hanging_object_matches_hand_computed_deflection():
     y = configuration()
     eq = eo.static_equilibrium(zero_length_model(), y, GRASPS)

@@ -232,6 +232,7 @@ def test_zero_rest_length_link_passes_through_zero_smoothly():
     np.testing.assert_allclose(traj.y[:, 0, 0], expected, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_max_steps_is_reported():
     with pytest.raises(eo.SimulationError, match="max_steps"):
         eo.simulate(

@@ -58,6 +58,7 @@ def test_split_identities_for_random_wrenches():
     np.testing.assert_allclose(ld.motion + ld.internal, wrenches, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_held_object_statics():
     """Grasps held still at a static equilibrium: the grasp wrenches carry the
     weight of everything and balance the moment of the grasps' own weight.

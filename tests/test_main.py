@@ -13,6 +13,7 @@ from elasticoop._io.summary import format_summary
 BALANCE_RTOL = 1e-6
 
 
+@pytest.mark.slow
 def test_default_scenario_energy_balance_closes():
     summary = run_default()
     energy = summary["energy"]

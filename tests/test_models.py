@@ -109,6 +109,7 @@ def test_linearize_rejects_a_loaded_configuration():
         eo.linearize_mobile(model, y)
 
 
+@pytest.mark.slow
 def test_linearized_and_mobile_models_agree_to_second_order():
     model = three_body_model(gravity=0.0)
     y0 = three_body_state()

@@ -78,6 +78,7 @@ def test_two_body_chain_matches_analytic_frequencies():
     np.testing.assert_allclose(np.sort(translational), np.sort(expected), rtol=1e-10)
 
 
+@pytest.mark.slow
 def test_linear_response_matches_nonlinear_simulation_for_small_amplitude():
     """A hanging object on two rest-length links (stiff only through the load it
     carries): the nonlinear and linear responses differ by O(eps^2)."""

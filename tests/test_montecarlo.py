@@ -268,6 +268,7 @@ def test_store_resume_and_loader(study, results, tmp_path):
         mc.run_study(study, store, chunk_size=4, batch_width=BATCH_WIDTH)
 
 
+@pytest.mark.slow
 def test_failing_samples_are_counted_and_others_unaffected(results):
     """Some samples start at gimbal lock, some draw a NaN: both are recorded,
     the study goes on, and every other sample is bit-identical."""

@@ -126,6 +126,7 @@ def test_batch_and_gradient(readme):
     np.testing.assert_allclose(directional, secant, rtol=0.2)
 
 
+@pytest.mark.slow
 def test_analysis(readme):
     ns = readme.run("analysis")
     eq, driven, y0 = ns["eq"], ns["driven"], ns["y0"]
@@ -145,6 +146,7 @@ def test_analysis(readme):
     assert np.all(frequencies > 0) and np.all(np.diff(frequencies) >= 0)
 
 
+@pytest.mark.slow
 def test_monte_carlo_study(readme):
     ns = readme.run("study")
     mc, ds, study = ns["mc"], ns["ds"], ns["study"]

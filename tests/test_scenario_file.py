@@ -136,6 +136,7 @@ def test_constant_force_moves_the_centre_of_mass_as_newton_says(tmp_path):
     np.testing.assert_allclose(z_c, expected, rtol=0, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_sampled_force_from_csv_is_a_ramp(tmp_path):
     # F_z(t) = c t sampled at 3 times is exact under linear interpolation:
     # z_c(t) = z_c(0) + c t^3 / (6 M) - g t^2 / 2 (zero initial momentum).
@@ -164,6 +165,7 @@ def test_immobile_model_from_csv_and_npy(immobile_dir):
     assert s.forces is None and s.solver == "tsit5"
 
 
+@pytest.mark.slow
 def test_prescribed_hold_and_csv_samples(tmp_path):
     hold = TINY + '[prescribed]\ncoordinates = { grip = "all", obj = ["z"] }\n'
     spec = load_scenario(write(tmp_path, hold)).prescribed

@@ -78,6 +78,7 @@ def test_gradient_matches_central_differences():
     np.testing.assert_array_less(error, 1e-3 * np.abs(fd) + GRAD_RTOL * top)
 
 
+@pytest.mark.slow
 def test_vmap_over_stiffness_and_damping_equals_loop():
     rng = np.random.default_rng(0)
     ks = MODEL.stiffness * jnp.array(rng.uniform(0.5, 1.5, size=(8, 2, 6)))
