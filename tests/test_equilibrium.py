@@ -126,3 +126,18 @@ def test_bad_equilibrium_inputs():
         eo.static_equilibrium(model, configuration(), np.ones((3, 6), bool))
     with pytest.raises(ValueError, match=r"forces must give shape \(2, 6\)"):
         eo.static_equilibrium(model, configuration(), GRASPS, np.zeros((4, 6)))
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"max_steps": 10**30}, r"max_steps .* at most 2147483647, got an integer"),
+        ({"rtol": -1.0}, r"static_equilibrium.rtol must be a positive number"),
+        ({"atol": float("nan")}, r"static_equilibrium.atol must be a positive number"),
+    ],
+)
+def test_bad_equilibrium_settings_are_named(settings, message):
+    """Settings are checked as the simulation's are (before: `max_steps=10**30` ended
+    in an `OverflowError`, a negative or NaN tolerance reached the solver)."""
+    with pytest.raises(ValueError, match=message):
+        eo.static_equilibrium(zero_length_model(), configuration(), GRASPS, **settings)

@@ -10,6 +10,7 @@ from .._custom_types import ArrayInput, DofMatrix, Scalar, State
 from .._lagrange import elastic_forces
 from .._models import AbstractElasticModel
 from .._models.base import numerical_rank
+from .._options import SimulationOptions
 from .._validation import as_float_array
 from ._common import as_mask, constant_forces
 
@@ -107,6 +108,10 @@ def static_equilibrium(
 
     **Returns:** an `Equilibrium`.
     """
+    # the tolerances and the iteration budget checked as the simulation's are
+    SimulationOptions(
+        rtol=rtol, atol=atol, max_steps=max_steps, owner="static_equilibrium"
+    )
     n = model.n_bodies
     y_guess = jnp.asarray(as_float_array(y_guess, "y_guess", (n, 6)))
     mask = as_mask(prescribed, n)
