@@ -115,6 +115,7 @@ def test_equinox_version_is_supported():
             check_equinox_version(outside)
 
 
+@pytest.mark.slow
 def test_jax_stores_checked_executables_only_in_nan_mode(tmp_path):
     # The reason for `elasticoop._compat`: with equinox's default mode an
     # `equinox.error_if` compiles to a host callback, and JAX does not store the

@@ -96,6 +96,7 @@ def test_run_every_example(examples_dir, tmp_path, capsys, name):
     assert set(PLOTS) <= written if not plots else not set(PLOTS) & written
 
 
+@pytest.mark.slow
 def test_hanging_object_physics_from_the_output_files(examples_dir, tmp_path):
     # Independent checks on the written data: (1) no external torque, so the yaw
     # momentum sum C_i yaw_i' (roll = pitch = 0 stay) is conserved; (2) once

@@ -109,6 +109,7 @@ def contents(folder) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in folder.iterdir()}
 
 
+@pytest.mark.slow
 def test_lone_body_runs_to_the_end_skipping_the_plots_that_do_not_apply(
     lone_body, tmp_path, capsys
 ):

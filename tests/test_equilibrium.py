@@ -56,6 +56,7 @@ def test_hanging_object_matches_hand_computed_deflection():
     assert eq.stable and float(eq.residual) < 1e-10
 
 
+@pytest.mark.slow
 def test_reactions_carry_the_whole_weight():
     eq = eo.static_equilibrium(zero_length_model(), configuration(), GRASPS)
     np.testing.assert_allclose(jnp.sum(eq.reaction[:, 2]), G * sum(MASSES), rtol=1e-12)
@@ -105,6 +106,7 @@ def test_immobile_model_is_a_linear_solve():
     "mask_rows, missing",
     [((), 6), (((1, slice(0, 3)),), 3), (((1, slice(0, 6)),), 0)],
 )
+@pytest.mark.slow
 def test_under_constrained_error_counts_missing_constraints(mask_rows, missing):
     mask = np.zeros((3, 6), bool)
     for body, cols in mask_rows:

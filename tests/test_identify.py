@@ -133,6 +133,7 @@ def test_start_is_the_candidate_that_fits_better():
     assert any("started from the model's values" in n for n in result.notes)
 
 
+@pytest.mark.slow
 def test_equation_error_exact_derivatives():
     model, y0 = _two_body()
     forces = _lift(model)

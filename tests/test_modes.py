@@ -27,6 +27,7 @@ def spring_mass(angles):
     return eo.linearize(model, y, mask)
 
 
+@pytest.mark.slow
 def test_spring_mass_frequencies_and_damping():
     md = eo.modes(spring_mass(UPRIGHT["zxz"]))
     translation = np.sqrt(K[:3] / 2.0)

@@ -250,7 +250,7 @@ def test_readme_set_up_commands():
     first, second = code.splitlines()
     assert "pip install . && python -m elasticoop" in first
     pytest_line = next(x for x in text.splitlines() if "pytest" in x)
-    assert pytest_line == second and second.endswith("pytest -q")
+    assert pytest_line == second and second.endswith("pytest -n auto -q")
 
 
 def test_readme_layout_matches_the_package_and_its_layers():
