@@ -61,9 +61,10 @@ class StepBudget:
         """`problem` with the budget that an accepted point needing `steps` solver
         steps calls for (the same problem when its budget suffices)."""
         current = problem.options.max_steps
-        if not self.adaptive or step_budget(steps) <= current:
+        budget = step_budget(steps)
+        if not self.adaptive or budget <= current:
             return problem
-        budget = self.raised_to = step_budget(steps)
+        self.raised_to = budget
         self.notes.append(
             f"step budget raised from {current} to {budget} at iteration "
             f"{iteration}, where the simulations took {steps} solver steps"
