@@ -27,7 +27,13 @@ from ._analysis import (  # noqa: E402
 )
 from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
 from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
-from ._config import ScenarioError as ScenarioError, load_scenario as load_scenario  # noqa: E402, I001
+from ._config import (  # noqa: E402, I001  # noqa: E402
+    ScenarioError as ScenarioError,
+    StudyFile as StudyFile,
+    StudyFileError as StudyFileError,
+    load_scenario as load_scenario,
+    load_study as load_study,
+)
 from ._examples import default_scenario as default_scenario  # noqa: E402
 from ._forces import (  # noqa: E402
     AbstractForce as AbstractForce,
@@ -86,6 +92,9 @@ from ._plotting import (  # noqa: E402
     plot_energy as plot_energy,
     plot_mode_shapes as plot_mode_shapes,
     plot_snapshots as plot_snapshots,
+    plot_study_histograms as plot_study_histograms,
+    plot_study_quantiles as plot_study_quantiles,
+    plot_study_sensitivity as plot_study_sensitivity,
     save_animation as save_animation,
 )
 from ._rotations import (  # noqa: E402

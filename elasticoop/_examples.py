@@ -13,6 +13,9 @@ from ._scenario import Scenario
 DEFAULT_EXAMPLE = "beam_lift"
 
 
+STUDY_SUFFIX = ".study.toml"
+
+
 def example_files() -> dict[str, Traversable]:
     """The example scenarios shipped with elasticoop: name -> TOML file (a
     `importlib.resources` traversable)."""
@@ -20,7 +23,18 @@ def example_files() -> dict[str, Traversable]:
     return {
         f.name[: -len(".toml")]: f
         for f in sorted(folder.iterdir(), key=lambda f: f.name)
-        if f.name.endswith(".toml")
+        if f.name.endswith(".toml") and not f.name.endswith(STUDY_SUFFIX)
+    }
+
+
+def example_studies() -> dict[str, Traversable]:
+    """The example Monte Carlo study files shipped with elasticoop (named
+    `<name>.study.toml`, beside the scenarios they vary): name -> TOML file."""
+    folder = importlib.resources.files("elasticoop") / "scenarios"
+    return {
+        f.name[: -len(STUDY_SUFFIX)]: f
+        for f in sorted(folder.iterdir(), key=lambda f: f.name)
+        if f.name.endswith(STUDY_SUFFIX)
     }
 
 

@@ -10,10 +10,10 @@ import contextlib
 import sys
 
 from .._cache import compilation_cache
-from . import check, demo, examples, modes, run
+from . import check, demo, examples, modes, montecarlo, run
 from ._common import UserError, named_paths, report_user_errors
 
-COMMANDS = (run, check, demo, examples, modes)
+COMMANDS = (run, check, demo, examples, modes, montecarlo)
 CACHED = ("run", "demo", "modes")
 
 

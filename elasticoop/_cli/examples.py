@@ -6,7 +6,7 @@ import pathlib
 import shutil
 import tomllib
 
-from .._examples import example_files
+from .._examples import example_files, example_studies
 from ._common import EXIT_OK, common_options, say
 
 NAME = "examples"
@@ -18,9 +18,10 @@ def register(subparsers) -> None:
         parents=[common_options()],
         help="list the example scenarios, or copy them to a folder",
         description=(
-            "List the example scenario files shipped with elasticoop. With --copy "
+            "List the example scenario files shipped with elasticoop, and the "
+            "Monte Carlo study files over them (NAME.study.toml). With --copy "
             "DIR, copy them and the data files they use into DIR, to edit and run "
-            "with 'elasticoop run'."
+            "with 'elasticoop run' and 'elasticoop montecarlo'."
         ),
     )
     parser.add_argument(
@@ -46,5 +47,9 @@ def execute(args) -> int:
     for name, file in files.items():
         info = tomllib.loads(file.read_text(encoding="utf-8"))
         say(args, f"{name}: {info.get('description', info.get('name', ''))}")
+        say(args, f"    {file}")
+    for name, file in example_studies().items():
+        info = tomllib.loads(file.read_text(encoding="utf-8"))
+        say(args, f"{name} (study): {info.get('description', info.get('name', ''))}")
         say(args, f"    {file}")
     return EXIT_OK

@@ -2,3 +2,8 @@
 
 from .build import build_scenario as build_scenario, load_scenario as load_scenario
 from .problems import Problem as Problem, ScenarioError as ScenarioError
+from .study_file import (
+    StudyFile as StudyFile,
+    StudyFileError as StudyFileError,
+    load_study as load_study,
+)

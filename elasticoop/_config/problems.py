@@ -16,15 +16,19 @@ class ScenarioError(ValueError):
     """A scenario file is invalid; `.problems` lists every problem found, each with
     its table, key and message, and `str(error)` names the file and all of them."""
 
+    what = "scenario file"
+
     def __init__(self, source: str, problems: list[Problem]):
         self.source = str(source)
         self.problems = list(problems)
-        super().__init__(format_problems(self.source, self.problems))
+        super().__init__(format_problems(self.source, self.problems, self.what))
 
 
-def format_problems(source: str, problems: list[Problem]) -> str:
+def format_problems(
+    source: str, problems: list[Problem], what: str = "scenario file"
+) -> str:
     n = len(problems)
-    lines = [f"{source}: {n} problem{'s' if n != 1 else ''} in the scenario file:"]
+    lines = [f"{source}: {n} problem{'s' if n != 1 else ''} in the {what}:"]
     for p in problems:
         if p.table == "(file)":
             lines.append(f"  - {p.message}")
@@ -126,10 +130,12 @@ def locate(
 
 
 class Problems:
-    """A list of problems for one scenario file."""
+    """A list of problems for one file; `raise_if_any` raises them as `error` (a
+    `ScenarioError` class: the scenario's, or one for another kind of file)."""
 
-    def __init__(self, source: str):
+    def __init__(self, source: str, error: type[ScenarioError] = ScenarioError):
         self.source = str(source)
+        self.error = error
         self.items: list[Problem] = []
 
     def add(self, table: str, key: str, message: str) -> None:
@@ -142,7 +148,7 @@ class Problems:
 
     def raise_if_any(self) -> None:
         if self.items:
-            raise ScenarioError(self.source, self.items)
+            raise self.error(self.source, self.items)
 
     def __bool__(self):
         return bool(self.items)

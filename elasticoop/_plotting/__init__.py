@@ -1,6 +1,12 @@
-"""Plots of a trajectory (matplotlib); every function returns the Figure."""
+"""Plots of a trajectory and of a Monte Carlo study's results (matplotlib); every
+function returns the Figure."""
 
 from .modes import plot_mode_shapes as plot_mode_shapes
+from .montecarlo import (
+    plot_study_histograms as plot_study_histograms,
+    plot_study_quantiles as plot_study_quantiles,
+    plot_study_sensitivity as plot_study_sensitivity,
+)
 from .time_series import (
     elastic_load_count as elastic_load_count,
     plot_coordinates as plot_coordinates,

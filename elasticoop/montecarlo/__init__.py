@@ -1,5 +1,6 @@
 """Monte Carlo studies: sampling, batched execution, statistics, sensitivities."""
 
+from .correlation import rank_correlations as rank_correlations
 from .distributions import (
     AbstractDistribution as AbstractDistribution,
     AbstractInverseCDFDistribution as AbstractInverseCDFDistribution,
@@ -38,5 +39,5 @@ from .stats import (
     valid_samples as valid_samples,
     wilson_interval as wilson_interval,
 )
-from .store import open_study as open_study
+from .store import StoreError as StoreError, open_study as open_study
 from .study import Study as Study

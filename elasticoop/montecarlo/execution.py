@@ -33,6 +33,7 @@ from .lock import store_lock
 from .sampling import lhs_strata
 from .store import (
     FORMAT,
+    StoreError,
     concatenate,
     open_study,
     prepare,
@@ -260,7 +261,7 @@ def _chunk_size(
 ):
     if existing is not None:
         if chunk_size is not None and chunk_size != existing["chunk_size"]:
-            raise ValueError(
+            raise StoreError(
                 f"chunk_size = {chunk_size}, but the store {store} was started with "
                 f"chunk_size = {existing['chunk_size']}; omit chunk_size to resume"
             )
@@ -294,7 +295,7 @@ def _open_store(
             try:
                 path.mkdir(parents=True, exist_ok=True)
             except OSError as err:
-                raise ValueError(f"cannot use {path} as a study store: {err}") from None
+                raise StoreError(f"cannot use {path} as a study store: {err}") from None
             stack.enter_context(store_lock(path))
             existing = read_manifest(path)
             chunk_size = _chunk_size(

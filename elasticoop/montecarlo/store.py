@@ -47,6 +47,11 @@ _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 _UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile)
 
 
+class StoreError(ValueError):
+    """A study store cannot be used: its manifest or a chunk is damaged, it holds
+    another study, or it holds no results yet. The message names the file."""
+
+
 def chunk_path(path: str | Path, chunk: int) -> Path:
     return Path(path) / f"chunk-{chunk:06d}.npz"
 
@@ -103,18 +108,18 @@ def read_manifest(path: str | Path) -> dict | None:
     try:
         manifest = json.loads(file.read_bytes().decode("utf-8"))
     except OSError as err:
-        raise ValueError(f"{file} cannot be read: {err}") from None
+        raise StoreError(f"{file} cannot be read: {err}") from None
     except UnicodeDecodeError as err:
-        raise ValueError(f"{file} is damaged: it is not UTF-8 text ({err})") from None
+        raise StoreError(f"{file} is damaged: it is not UTF-8 text ({err})") from None
     except json.JSONDecodeError as err:
-        raise ValueError(f"{file} is not a valid manifest: {err}") from None
+        raise StoreError(f"{file} is not a valid manifest: {err}") from None
     _check_manifest(manifest, file)
     return manifest
 
 
 def _check_manifest(manifest: Any, file: Path) -> None:
     def fail(problem: str):
-        raise ValueError(f"{file} is damaged or not a study manifest: {problem}")
+        raise StoreError(f"{file} is damaged or not a study manifest: {problem}")
 
     def entry(table: dict, key: str, kind: type | tuple[type, ...], where: str = ""):
         if key not in table:
@@ -181,12 +186,12 @@ def prepare(path: str | Path, manifest: dict, trust_callables: bool = False) -> 
     manifest = manifest | {"chunks": {}}
     if existing is None:
         if any(_CHUNK.match(p.name) for p in path.iterdir()):
-            raise ValueError(f"{path} holds chunks but no {MANIFEST}; use a new folder")
+            raise StoreError(f"{path} holds chunks but no {MANIFEST}; use a new folder")
         write_manifest(path, manifest)
         return manifest
     file = path / MANIFEST
     if existing["format"] != FORMAT:
-        raise ValueError(
+        raise StoreError(
             f"the store {path} was written by an earlier version of elasticoop "
             f"({file} has format {existing['format']!r}), which recorded neither "
             f"checksums of the chunks nor digests of the outputs, distributions and "
@@ -235,7 +240,7 @@ def _check_same_study(path: Path, existing: dict, manifest: dict) -> None:
             if differ:
                 detail = f"; these parts differ: {', '.join(dict.fromkeys(differ))}"
             detail += _version_change(existing, manifest)
-        raise ValueError(
+        raise StoreError(
             f"the store {path} holds another study: its {key} is "
             f"{_short(existing[key])}, this run's is {_short(manifest[key])}"
             f"{detail}. Resume with the same settings or use a new folder."
@@ -264,7 +269,7 @@ def _check_verified(path: Path, manifest: dict) -> None:
     listed = "; ".join(
         f"{part}: {', '.join(reasons)}" for part, reasons in unverified.items()
     )
-    raise ValueError(
+    raise StoreError(
         f"cannot resume the store {path}: these parts of the study cannot be "
         f"verified to be unchanged since the store was started: {listed}. Pass "
         f"trust_callables=True to run_study if you are sure they are unchanged, or "
@@ -325,10 +330,10 @@ def read_chunk(path: str | Path, chunk: int, manifest: dict) -> dict:
     try:
         data = file.read_bytes()
     except OSError as err:
-        raise ValueError(f"chunk file {file} cannot be read: {err}") from None
+        raise StoreError(f"chunk file {file} cannot be read: {err}") from None
     record = manifest.get("chunks", {}).get(str(chunk))
     if record is not None and (problem := _mismatch(data, record)) is not None:
-        raise ValueError(
+        raise StoreError(
             f"chunk file {file} {problem}; run run_study on this store again to "
             f"compute it anew"
         )
@@ -336,18 +341,18 @@ def read_chunk(path: str | Path, chunk: int, manifest: dict) -> dict:
         with np.load(io.BytesIO(data)) as npz:
             arrays = {k: npz[k] for k in npz.files}
     except _UNREADABLE as err:
-        raise ValueError(
+        raise StoreError(
             f"chunk file {file} cannot be read ({type(err).__name__}: {err})"
         ) from None
     size, n = manifest["chunk_size"], manifest["study"]["n_samples"]
     expected = np.arange(chunk * size, min((chunk + 1) * size, n))
     if "sample" not in arrays or not np.array_equal(arrays["sample"], expected):
-        raise ValueError(f"chunk file {file} does not hold samples {expected[0]}..")
+        raise StoreError(f"chunk file {file} does not hold samples {expected[0]}..")
     for name, spec in manifest["variables"].items():
         shape = (len(expected), *spec["shape"])
         if name not in arrays or arrays[name].shape != shape:
             got = arrays[name].shape if name in arrays else "nothing"
-            raise ValueError(
+            raise StoreError(
                 f"chunk file {file} does not hold the variable {name!r} of shape "
                 f"{shape}: it holds {got}"
             )
@@ -401,7 +406,7 @@ def open_study(path: str | Path) -> xr.Dataset:
     """
     manifest = read_manifest(path)
     if manifest is None:
-        raise ValueError(f"{path} is not a study store (no {MANIFEST})")
+        raise StoreError(f"{path} is not a study store (no {MANIFEST})")
     done = completed_chunks(path, manifest)
     present = completed_chunks(path, manifest | {"format": FORMAT_V1})
     if len(present) != len(done):
@@ -410,13 +415,13 @@ def open_study(path: str | Path) -> xr.Dataset:
         done = completed_chunks(path, manifest)
         for chunk in present:
             if chunk not in done:
-                raise ValueError(
+                raise StoreError(
                     f"chunk file {chunk_path(path, chunk)} is not recorded in "
                     f"{Path(path) / MANIFEST}, so it cannot be verified; run run_study "
                     f"on this store again to compute it anew"
                 )
     if not done:
-        raise ValueError(f"the study store {path} holds no complete chunk yet")
+        raise StoreError(f"the study store {path} holds no complete chunk yet")
     return to_dataset(
         concatenate([read_chunk(path, c, manifest) for c in done]), manifest
     )

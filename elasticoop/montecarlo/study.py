@@ -13,7 +13,11 @@ import numpy as np
 
 from .._forces import check_force
 from .._models import AbstractElasticModel, MobileModel
-from .._naming import connection_names, coordinate_names, default_body_names
+from .._naming import (
+    body_names as checked_body_names,
+    connection_names,
+    coordinate_names,
+)
 from .._options import SimulationOptions
 from .._simulate import simulate
 from .._validation import as_float_array, check_times
@@ -71,6 +75,9 @@ class Study(eqx.Module):
     - `solver`, `rtol`, `atol`, `max_steps`: passed to `simulate` (see
       `SimulationOptions`; `solver` is a diffrax solver or its name, default
       `"tsit5"`).
+    - `body_names`, `connection_names`: labels of the `body` and `connection` axes
+      in the results (default `object, contact1, ...` and `<body_i>-<body_j>`);
+      they name, and do not change, the samples.
     """
 
     inputs: Inputs
@@ -85,6 +92,8 @@ class Study(eqx.Module):
     _leaf_shapes: tuple[tuple[str, tuple[int, ...]], ...] = eqx.field(static=True)
     # (name, shape, dtype) of every entry of one sample's record
     _record: tuple[tuple[str, tuple[int, ...], np.dtype], ...] = eqx.field(static=True)
+    body_names: tuple[str, ...] = eqx.field(static=True)
+    connection_names: tuple[str, ...] | None = eqx.field(static=True)
 
     def __init__(
         self,
@@ -102,6 +111,8 @@ class Study(eqx.Module):
         rtol: float = 1e-8,
         atol: float = 1e-10,
         max_steps: int = 100_000,
+        body_names=None,
+        connection_names=None,
     ):
         if not isinstance(model, AbstractElasticModel):
             raise ValueError(
@@ -109,6 +120,10 @@ class Study(eqx.Module):
                 f"{type(model).__name__}"
             )
         n = model.n_bodies
+        self.body_names = checked_body_names(body_names, n)
+        self.connection_names = _connection_names(
+            model, connection_names, self.body_names
+        )
         y_init = jnp.asarray(as_float_array(y_init, "Study.y_init", (n, 6)))
         ydot_init = jnp.asarray(as_float_array(ydot_init, "Study.ydot_init", (n, 6)))
         ts = check_times(ts, "Study.ts")
@@ -143,7 +158,7 @@ class Study(eqx.Module):
                 y_init[:, 3:],
                 self.options.gimbal_tol,
                 "Study.y_init",
-                default_body_names(n),
+                self.body_names,
             )
         self._output_names, self._output_fns = self._check_outputs(outputs)
         self._record = self._check_record()
@@ -269,16 +284,13 @@ class Study(eqx.Module):
         """Labels of the named axes shared with the trajectory export: `time`,
         `body`, `coordinate` and (`MobileModel`) `connection`."""
         model = self.inputs.model
-        bodies = default_body_names(model.n_bodies)
         labels = {
             "time": np.asarray(self.ts).tolist(),
-            "body": list(bodies),
+            "body": list(self.body_names),
             "coordinate": list(coordinate_names(model.convention)),
         }
-        if isinstance(model, MobileModel):
-            labels["connection"] = list(
-                connection_names(None, model.connectivity, bodies)
-            )
+        if self.connection_names is not None:
+            labels["connection"] = list(self.connection_names)
         return labels
 
     @property
@@ -407,6 +419,17 @@ class Study(eqx.Module):
         """SHA-256 of `describe()` and of the digests of `fingerprint_parts()`:
         equal fingerprints mean the same study (every sample the same value)."""
         return combined_fingerprint(self.describe(), self.fingerprint_parts())
+
+
+def _connection_names(model, given, bodies) -> tuple[str, ...] | None:
+    """The connections' labels of a `MobileModel` (`None` for other models)."""
+    if not isinstance(model, MobileModel):
+        if given is not None:
+            raise ValueError(
+                "Study.connection_names: only a MobileModel has connections"
+            )
+        return None
+    return connection_names(given, model.connectivity, bodies)
 
 
 def combined_fingerprint(description: dict, parts: Mapping[str, Digest]) -> str:

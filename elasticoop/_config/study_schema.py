@@ -1,0 +1,131 @@
+"""The study-file schema: one pydantic model per TOML table of a Monte Carlo study
+file (see `study_file.load_study`).
+
+Like the scenario tables, every table forbids unknown keys and is strict about
+types. Checks against the scenario (a body or connection name, whether a quantity
+exists in its model) are made when the study is built.
+"""
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from .schema import Name, NonNegative, Number, Positive, Table
+
+# The quantities a study may vary, and the outputs it may keep (the names in the
+# file; see `study_quantities`).
+PARAMETER_QUANTITIES = (
+    "mass",
+    "inertia",
+    "stiffness",
+    "damping",
+    "rest_length",
+    "gravity",
+    "kp",
+    "kd",
+    "lift_height",
+    "lift_time",
+)
+OUTPUT_QUANTITIES = (
+    "peak_elastic_force",
+    "max_deflection",
+    "final_pose_error",
+    "object_pose",
+    "elastic_force",
+    "trajectory",
+)
+DISTRIBUTIONS = ("normal", "lognormal", "uniform")
+SEED_LIMIT = 2**32 - 1
+Identifier = Annotated[
+    str,
+    Field(
+        pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description="a name in the results: letters, digits and '_'",
+    ),
+]
+Spread = NonNegative | Annotated[list[NonNegative], Field(min_length=1)]
+
+
+class StudyInfo(Table):
+    """Top-level keys: `scenario` (a path relative to the study file, or the name
+    of a shipped example), `name` and `description`."""
+
+    scenario: str = Field(min_length=1)
+    name: str | None = Field(default=None, min_length=1)
+    description: str = ""
+
+
+class SamplingTable(Table):
+    """`[sampling]`: number of samples, seed and method."""
+
+    samples: Annotated[int, Field(ge=1)]
+    seed: Annotated[int, Field(ge=0, le=SEED_LIMIT)] = 0
+    method: Literal["random", "lhs"] = "random"
+
+
+class StudyTimeTable(Table):
+    """`[time]`: replaces the scenario's time span and output times, key by key."""
+
+    start: Number | None = None
+    stop: Number | None = None
+    samples: Annotated[int, Field(ge=2)] | None = None
+
+
+class StudySolverTable(Table):
+    """`[solver]`: replaces the scenario's tolerances and step budget, key by key."""
+
+    rtol: Positive | None = None
+    atol: Positive | None = None
+    max_steps: Annotated[int, Field(ge=1)] | None = None
+
+
+class ParameterTable(Table):
+    """`[[parameters]]`: one uncertain quantity of the scenario and its law."""
+
+    quantity: Literal[PARAMETER_QUANTITIES]  # type: ignore[valid-type]
+    name: Identifier | None = None
+    bodies: Annotated[list[Name], Field(min_length=1)] | None = None
+    connections: Annotated[list[Name], Field(min_length=1)] | None = None
+    axes: Annotated[list[str], Field(min_length=1)] | None = None
+    distribution: Literal[DISTRIBUTIONS]  # type: ignore[valid-type]
+    relative_spread: Spread | None = None
+    absolute_spread: Spread | None = None
+
+    @model_validator(mode="after")
+    def _one_spread(self):
+        given = [
+            k
+            for k in ("relative_spread", "absolute_spread")
+            if getattr(self, k) is not None
+        ]
+        if len(given) != 1:
+            raise ValueError(
+                "give exactly one of 'relative_spread' (a fraction of the nominal "
+                "value) or 'absolute_spread' (in the quantity's unit)"
+            )
+        if self.distribution == "lognormal" and self.absolute_spread is not None:
+            raise ValueError(
+                "a lognormal law takes 'relative_spread' (the standard deviation "
+                "of log(value / nominal)), not 'absolute_spread'"
+            )
+        return self
+
+
+class OutputTable(Table):
+    """`[[outputs]]`: one quantity kept of every sample, and the thresholds whose
+    exceedance probabilities the summary reports."""
+
+    quantity: Literal[OUTPUT_QUANTITIES]  # type: ignore[valid-type]
+    name: Identifier | None = None
+    thresholds: list[Number] = []
+
+
+STUDY_SECTIONS = {
+    "sampling": (SamplingTable, "table"),
+    "time": (StudyTimeTable, "table"),
+    "solver": (StudySolverTable, "table"),
+    "parameters": (ParameterTable, "array"),
+    "outputs": (OutputTable, "array"),
+}
+STUDY_REQUIRED = ("sampling", "parameters", "outputs")
+STUDY_TOP_LEVEL_KEYS = ("scenario", "name", "description")
