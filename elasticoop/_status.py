@@ -19,22 +19,32 @@ class Status(enum.IntEnum):
     OUTSIDE_FORCE_SAMPLES = 6
 
 
-def status_message(traj) -> str:
-    """A sentence describing `traj.status` (a single, un-batched `Trajectory`)."""
+def status_message(traj, body_names=None, connection_names=None) -> str:
+    """A sentence describing `traj.status` (a single, un-batched `Trajectory`);
+    the body or connection at fault is named by `body_names` and
+    `connection_names` when given, else by its index."""
     status = Status(int(traj.status))
     t = float(traj.event_time)
     k = int(traj.event_index)
+
+    def body(i: int) -> str:
+        return f"body '{body_names[i]}'" if body_names else f"body {i}"
+
     if status == Status.SUCCESS:
         return "the simulation reached the final time"
     if status == Status.GIMBAL_LOCK:
         rotation = traj.model.rotation
         return rotation.gimbal_lock_message(
-            f"gimbal lock: body {k} reached", f"below the threshold at t = {t:.9g} s"
+            f"gimbal lock: {body(k)} reached", f"below the threshold at t = {t:.9g} s"
         )
     if status == Status.LINK_COLLAPSED:
         i, j = (int(v) for v in np.asarray(traj.model.pairs)[k])
+        link = f"'{connection_names[k]}'" if connection_names else f"{k}"
+        ends = (
+            f"'{body_names[i]}' and '{body_names[j]}'" if body_names else f"{i} and {j}"
+        )
         return (
-            f"connection {k} between bodies {i} and {j} collapsed (|r_i - r_j| fell "
+            f"connection {link} between bodies {ends} collapsed (|r_i - r_j| fell "
             f"below link_tol x rest length) at t = {t:.9g} s; its deflection has no "
             f"direction at zero length"
         )
@@ -47,7 +57,7 @@ def status_message(traj) -> str:
         )
     if status == Status.NONFINITE:
         where = (
-            f"the initial state or the forces of body {k}"
+            f"the initial state or the forces of {body(k)}"
             if k >= 0
             else "the accelerations or the step size"
         )

@@ -48,6 +48,27 @@ def examples_dir(tmp_path_factory):
     return folder
 
 
+def test_copying_examples_keeps_edited_files_unless_overwrite(tmp_path, capsys):
+    folder = tmp_path / "study"
+    assert main(["examples", "--copy", str(folder), "-q"]) == 0
+    # copying again over unchanged files is fine
+    assert main(["examples", "--copy", str(folder), "-q"]) == 0
+    edited = folder / "beam_lift.toml"
+    mine = edited.read_text() + "# my change\n"
+    edited.write_text(mine)
+    (folder / "hanging_object_K.csv").write_text("0\n")
+    (folder / "plate_lift.toml").unlink()
+    capsys.readouterr()
+    assert main(["examples", "--copy", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert "beam_lift.toml, hanging_object_K.csv" in err and "--overwrite" in err
+    assert "Traceback" not in err
+    # nothing was copied: the edit is kept, the missing file is still missing
+    assert edited.read_text() == mine and not (folder / "plate_lift.toml").exists()
+    assert main(["examples", "--copy", str(folder), "--overwrite", "-q"]) == 0
+    assert edited.read_text() != mine and (folder / "plate_lift.toml").is_file()
+
+
 def test_examples_are_listed_and_copied(examples_dir, capsys):
     assert EXAMPLES == sorted(EXPECTED_BODIES)
     assert main(["examples"]) == 0
@@ -84,6 +105,9 @@ def test_run_every_example(examples_dir, tmp_path, capsys, name):
         assert ds.attrs["status"] == 0
         assert ds.attrs["scenario_file"].endswith(f"{name}.toml")
         assert np.all(np.isfinite(ds["y"].values))
+        # the manipulators' forces are exported, zero on the object
+        assert ds["applied_force"].dims == ds["y"].dims
+        assert np.all(ds["applied_force"].values[:, 0] == 0)
         residual = np.max(np.abs(ds["energy_residual"].values))
         scale = np.max(np.abs(ds["work"].values)) + np.max(ds["dissipated"].values)
         assert residual < 1e-5 * scale  # the energy balance closes
@@ -151,6 +175,9 @@ def test_simulation_stopping_early_exits_3_with_partial_results(tmp_path, capsys
     err = capsys.readouterr().err
     assert "simulation stopped early" in err and "gimbal lock" in err
     assert len(err.strip().splitlines()) == 1  # one paragraph, no traceback
+    # the body by the scenario's name, and where the partial results are
+    assert "body 'disc'" in err and "body 0" not in err
+    assert "partial results, from t = 0 to 0.1" in err and str(outdir) in err
     summary = json.loads((outdir / "summary.json").read_text())
     assert summary["status"] == 1
     assert summary["simulated_time"] == pytest.approx(0.15)  # last sample before
@@ -219,6 +246,13 @@ def test_modes_of_the_held_beam(examples_dir, tmp_path, capsys):
     summary = json.loads(text, parse_constant=not_json)  # strict JSON
     freqs = np.array(summary["frequencies_hz"])
     assert freqs.shape == (6,) and np.all(np.diff(freqs) >= 0) and freqs[0] > 0
+    # the layout of the shapes is stated: a row per coordinate, a column per mode;
+    # the dominant coordinate of each column is the one the printed table names
+    assert summary["shapes_dims"] == ["coordinate", "mode"]
+    shapes, names = np.array(summary["shapes"]), summary["coordinates"]
+    assert shapes.shape == (len(names), 6)
+    rows = [line.split() for line in out.splitlines() if line.split()[:1] == ["1"]]
+    assert names[np.argmax(np.abs(shapes[:, 0]))] == rows[-1][-1]
     assert (outdir / "modes.png").stat().st_size > 0
     assert {p.name for p in tmp_path.iterdir()} == {"modes"}  # nothing left beside
 

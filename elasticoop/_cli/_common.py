@@ -15,6 +15,7 @@ import numpy as np
 from .._config import ScenarioError, load_scenario
 from .._io.folder import OutputFolder, OutputFolderError
 from .._simulate import SimulationError, simulate
+from .._status import status_message
 
 EXIT_OK = 0
 EXIT_BUG = 1  # a bug in elasticoop (or a dependency): shown with its traceback
@@ -197,6 +198,24 @@ def load(path):
     return load_scenario(path)
 
 
+def stopped_early(scenario, error: SimulationError, folder=None) -> SimulationError:
+    """The `SimulationError` of a run that stopped early, reworded for the command
+    line: the body or connection at fault by the scenario's names, and where the
+    partial results were written (`folder`, an `OutputFolder`, or `None` when none
+    were)."""
+    traj = error.trajectory
+    message = status_message(traj, scenario.names, scenario.connection_names or None)
+    t0, t = float(traj.ts[0]), float(traj.event_time)
+    if folder is None:
+        where = "no results were written (give -o OUTDIR to keep the partial ones)"
+    else:
+        where = (
+            f"the partial results, from t = {t0:g} to {t:g} s (NaN after), were "
+            f"written to {folder.path}"
+        )
+    return SimulationError(f"{message}; {where}", traj)
+
+
 def add_output_options(parser, help: str, required: bool = False) -> None:
     """`-o/--output OUTDIR` and `--overwrite` (see `output_folder`)."""
     parser.add_argument(
@@ -241,6 +260,7 @@ def write_results(scenario, traj, wall_time, folder: OutputFolder, args) -> list
             "rtol": scenario.rtol,
             "atol": scenario.atol,
         },
+        forces=scenario.forces,
     )
     summary = scenario_summary(scenario, traj, wall_time)
     with folder.writing() as staging:

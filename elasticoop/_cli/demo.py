@@ -14,6 +14,7 @@ from ._common import (
     positive_float,
     say,
     simulate_scenario,
+    stopped_early,
     write_results,
 )
 
@@ -62,7 +63,7 @@ def execute(args) -> int:
     if folder is not None:
         paths = write_results(scenario, traj, wall, folder, args)
     if error is not None:
-        raise error
+        raise stopped_early(scenario, error, folder)
     say(args, format_summary(scenario_summary(scenario, traj, wall)))
     if folder is not None:
         say(args, "wrote " + ", ".join(str(p) for p in paths))

@@ -32,7 +32,9 @@ def register(subparsers) -> None:
             "contact bodies is held), starting from the initial state; then "
             "linearize there and print the natural frequencies, damping ratios and "
             "dominant coordinates of the modes. With -o, also write modes.json "
-            "(strict JSON: a damping ratio that does not apply is null) and a plot "
+            "(strict JSON: a damping ratio that does not apply is null; the mass-"
+            "normalized mode shapes as 'shapes', a row per free coordinate and a "
+            "column per mode, as 'shapes_dims' says) and a plot "
             "of the first mode shapes, modes.png, into a new folder that takes "
             "OUTDIR's place once both are written (OUTDIR must be missing or "
             "empty, or hold earlier results with --overwrite)."
@@ -83,6 +85,8 @@ def execute(args) -> int:
             "frequencies_hz": result.frequencies_hz.tolist(),
             "damping_ratios": result.damping_ratios.tolist(),
             "coordinates": list(result.names),
+            # shapes[c][k]: mode k's component along coordinate c
+            "shapes_dims": ["coordinate", "mode"],
             "shapes": result.shapes.tolist(),
         }
         with folder.writing() as staging:

@@ -11,6 +11,7 @@ from ._common import (
     output_folder,
     say,
     simulate_scenario,
+    stopped_early,
     write_results,
 )
 
@@ -66,7 +67,7 @@ def execute(args) -> int:
     traj, wall, error = simulate_scenario(scenario, args)
     paths = write_results(scenario, traj, wall, folder, args)
     if error is not None:
-        raise error
+        raise stopped_early(scenario, error, folder)
     say(args, format_summary(scenario_summary(scenario, traj, wall)))
     say(args, "wrote " + ", ".join(str(p) for p in paths))
     return EXIT_OK

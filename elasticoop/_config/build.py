@@ -1,11 +1,13 @@
 """Scenario file -> `Scenario`: parse TOML, validate every table, check the tables
 against each other, and build the model, forces and prescribed coordinates."""
 
+import dataclasses
 import math
 import pathlib
 import tomllib
 from typing import Any
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
@@ -19,6 +21,13 @@ from .._options import GIMBAL_TOL
 from .._rotations import get_rotation
 from .._scenario import PrescribedSpec, Scenario
 from .data_files import read_matrix, read_series
+from .initial import (
+    INITIAL_FROM,
+    equilibrium_start,
+    forces_at_start,
+    held_coordinates,
+    holding_forces,
+)
 from .limits import (
     MAX_OUTPUT_BYTES,
     MAX_SAMPLES_BYTES,
@@ -106,6 +115,8 @@ class _Builder:
         self.base_dir = base_dir
         self.problems = Problems(source)
         self.s = {}  # validated sections
+        self.initial_from = None  # `[initial] from`
+        self.hold_feedforward = False  # pose tracking with feedforward = "hold"
 
     def add(self, table, key, message):
         self.problems.add(table, key, message)
@@ -130,6 +141,8 @@ class _Builder:
                     self.add(table, "", "missing table")
                 continue
             raw = self.raw[name]
+            if name == "initial":
+                raw = self.initial_option(raw)
             if shape == "array" and isinstance(raw, list):
                 # entry by entry, so that valid entries still take part in the
                 # checks across tables (None marks an invalid entry)
@@ -141,6 +154,25 @@ class _Builder:
                 self.s[name] = _ADAPTERS[name].validate_python(raw)
             except ValidationError as err:
                 self.problems.add_validation_error(name, shape, raw, err)
+
+    def initial_option(self, raw):
+        """Take the option `from` (a string; a table of that name is a body's) out
+        of `[initial]` and check it; returns the body tables."""
+        self.initial_from = None
+        if not isinstance(raw, dict) or not isinstance(raw.get("from"), str):
+            return raw
+        value = raw["from"]
+        if value in INITIAL_FROM:
+            self.initial_from = value
+        else:
+            choices = " or ".join(f'"{v}"' for v in INITIAL_FROM)
+            self.add(
+                "[initial]",
+                "from",
+                f"must be {choices} (or left out for the poses as given), got "
+                f"{show_value(value)}",
+            )
+        return {k: v for k, v in raw.items() if k != "from"}
 
     def _validate_entry(self, name, raw, k):
         cls = SECTIONS[name][0]
@@ -208,6 +240,14 @@ class _Builder:
                 ydot[k, :3] = pose.velocity
                 if pose.angle_rates is not None:
                     ydot[k, 3:] = pose.angle_rates.to_radians()
+                if self.initial_from is not None and np.any(ydot[k]):
+                    moving = "velocity" if np.any(ydot[k, :3]) else "angle_rates"
+                    self.add(
+                        f"[{section}.{name}]",
+                        moving,
+                        f'from = "{self.initial_from}" starts at rest: leave out '
+                        "velocity and angle_rates",
+                    )
             try:
                 self.rotation.check_regular(
                     y[k : k + 1, 3:], GIMBAL_TOL, f"[{section}]", [name]
@@ -437,6 +477,8 @@ class _Builder:
         feedforward = np.zeros((m, 6))
         if pose.feedforward == "weight":
             feedforward[:, 2] = masses.sum() * self.model_table.gravity / m
+        # "hold": set once the model and the initial state are known
+        self.hold_feedforward = pose.feedforward == "hold"
         return PoseTracking(
             y_ref=jnp.asarray(self.y_init[1:]),
             feedforward=jnp.asarray(feedforward),
@@ -488,6 +530,41 @@ class _Builder:
         for (k, c), column in parsed.items():
             values[:, k, c] = column * (scale if c >= 3 else 1.0)
         return PrescribedSpec(mask, times, values)
+
+    def equilibrium(self, model, forces, prescribed):
+        """`[initial] from = "equilibrium"`: the static equilibrium of the free
+        coordinates under gravity and the forces at the start, at rest, held
+        constant (with `feedforward = "hold"`, none on the contact bodies), with
+        the `[prescribed]` coordinates (without that table, the contact bodies)
+        held at their `[initial]` values; returns the initial state and the
+        prescribed motion and forces that start from it."""
+        n = model.n_bodies
+        mask = held_coordinates(n, None if prescribed is None else prescribed.mask)
+        applied = forces_at_start(
+            forces, float(self.ts[0]), jnp.asarray(self.y_init), n
+        )
+        if self.hold_feedforward:
+            applied = applied.at[1:].set(0.0)
+        try:
+            found = equilibrium_start(model, self.y_init, mask, applied)
+        except ValueError as err:
+            held = "[prescribed] coordinates" if prescribed else "contact bodies"
+            self.add(
+                "[initial]",
+                "from",
+                f"no static equilibrium to start from, with the {held} held at "
+                f"their [initial] poses: {err}",
+            )
+            raise ScenarioError(self.source, self.problems.items) from None
+        y_init = np.asarray(found.y)
+        if prescribed is not None:
+            # the free entries of the prescribed motion carry the initial state
+            values = np.where(mask, prescribed.values, y_init)
+            prescribed = dataclasses.replace(prescribed, values=values)
+        if isinstance(forces, PoseTracking):
+            # the grasps are tracked from the poses they start at
+            forces = eqx.tree_at(lambda f: f.y_ref, forces, jnp.asarray(y_init[1:]))
+        return y_init, prescribed, forces
 
     # -- stage 3: build --------------------------------------------------------------
     def build(self) -> Scenario:
@@ -548,13 +625,19 @@ class _Builder:
         except ValueError as err:
             self.add("[model]", "", str(err))
             self.problems.raise_if_any()
+        y_init = np.asarray(self.y_init)
+        if self.initial_from == "equilibrium":
+            y_init, prescribed, forces = self.equilibrium(model, forces, prescribed)
+        if self.hold_feedforward:
+            hold = holding_forces(model, jnp.asarray(y_init))
+            forces = eqx.tree_at(lambda f: f.feedforward, forces, hold)
         solver = self.s.get("solver") or SolverTable()
         source = pathlib.Path(self.source)
         name = self.info.name or source.stem
         return Scenario(
             name=name,
             model=model,
-            y_init=jnp.asarray(self.y_init),
+            y_init=jnp.asarray(y_init),
             ydot_init=jnp.asarray(ydot_init),
             ts=jnp.asarray(self.ts),
             forces=forces,

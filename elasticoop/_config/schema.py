@@ -170,13 +170,16 @@ class ImmobileTable(Table):
 
 
 class PoseTrackingTable(Table):
-    """`[forces.pose_tracking]`: PD control of the grasp poses along a lift."""
+    """`[forces.pose_tracking]`: PD control of the grasp poses along a lift, plus a
+    constant feedforward: `"weight"` (an equal share of the total weight on each
+    grasp, along z), `"hold"` (the forces that hold each contact body at rest in
+    the initial state, $\\partial\\Pi/\\partial Y_i - G_i$) or `"none"`."""
 
     lift_height: Number
     lift_time: Positive
     kp: NonNegative6
     kd: NonNegative6
-    feedforward: Literal["weight", "none"] = "weight"
+    feedforward: Literal["weight", "hold", "none"] = "weight"
 
 
 class ForcesTable(Table):

@@ -8,12 +8,14 @@ from .._naming import (
     connection_names as connection_names_of,
 )
 from .._status import status_message
+from .grasp_peaks import peak_grasp_loads
 
 
 def summarize(traj, body_names=None, connection_names=None) -> dict:
     """A JSON-ready summary of a trajectory: object displacement and rotation, peak
-    elastic force and torque per connection (`MobileModel`) or per contact body
-    (`ImmobileModel`, from $\\partial\\Pi/\\partial Y$), and the energy balance
+    grasp force and torque, elastic plus damping, per connection (`MobileModel`) or
+    per contact body (`ImmobileModel`), over the run (at the saved samples and
+    between them: `peak_grasp_loads`), and the energy balance
     $\\Delta(T + \\Pi + \\sum m g z) = W_F - E_{diss}$ with its residual, also
     relative to the largest term of the balance ($|W_F|$, $E_{diss}$,
     $|\\Delta T|$, $|\\Delta \\Pi|$, $|\\Delta \\sum m g z|$)."""
@@ -42,17 +44,19 @@ def summarize(traj, body_names=None, connection_names=None) -> dict:
         gravity[last] - gravity[0],
     )
     scale = max(max(abs(float(term)) for term in terms), 1e-300)
-    pairs, wrench = traj.grasp_loads()
-    wrench = np.asarray(wrench)[: last + 1]
+    pairs, _ = traj.grasp_loads()
+    # elastic + damping, between the saved samples too
+    peak_force, peak_torque = peak_grasp_loads(traj)
     if isinstance(model, MobileModel):
         labels = list(connection_names_of(connection_names, pairs, bodies))
         peak_of = "connection"
     else:
         labels = list(bodies[1:])
         peak_of = "contact body"
+    links = labels if isinstance(model, MobileModel) else None
     return {
         "status": int(traj.status),
-        "message": status_message(traj),
+        "message": status_message(traj, bodies, links),
         "model": type(model).__name__,
         "convention": model.convention,
         "bodies": list(bodies),
@@ -61,12 +65,8 @@ def summarize(traj, body_names=None, connection_names=None) -> dict:
         "object_rotation": (y[last, 0, 3:] - y[0, 0, 3:]).tolist(),
         "peak_of": peak_of,
         "peak_labels": labels,
-        "peak_force": np.max(
-            np.linalg.norm(wrench[:, :, :3], axis=-1), axis=0, initial=0.0
-        ).tolist(),
-        "peak_torque": np.max(
-            np.linalg.norm(wrench[:, :, 3:], axis=-1), axis=0, initial=0.0
-        ).tolist(),
+        "peak_force": peak_force.tolist(),
+        "peak_torque": peak_torque.tolist(),
         "energy": {
             "kinetic_final": float(kinetic[last]),
             "elastic_final": float(elastic[last]),
@@ -125,7 +125,7 @@ def format_summary(s: dict) -> str:
         "  object rotation (Euler angles): "
         + ", ".join(f"{a:+.2e}" for a in s["object_rotation"])
         + " rad",
-        "  peak elastic force per grasp:",
+        "  peak grasp load (elastic + damping):",
     ]
     for (i, j), label, f, t in zip(
         s["pairs"], s["peak_labels"], s["peak_force"], s["peak_torque"]

@@ -3,6 +3,7 @@ wide table (CSV)."""
 
 from typing import TYPE_CHECKING
 
+import equinox as eqx
 import numpy as np
 
 from .._models import ImmobileModel, MobileModel
@@ -26,6 +27,7 @@ _UNITS = {
     "elastic_force": ("N", "N m"),
     "elastic_wrench": ("N", "N m"),
     "reaction": ("N", "N m"),
+    "applied_force": ("N", "N m"),
 }
 _ENERGIES = {
     "kinetic_energy": "kinetic energy T",
@@ -38,7 +40,7 @@ _ENERGIES = {
 
 
 def trajectory_to_xarray(
-    traj, body_names=None, connection_names=None, attrs=None
+    traj, body_names=None, connection_names=None, attrs=None, forces=None
 ) -> "xarray.Dataset":
     """The trajectory as an `xarray.Dataset`.
 
@@ -62,6 +64,9 @@ def trajectory_to_xarray(
     - `connection_names`: names of the connections (default `"<i>-<j>"` with body
       names).
     - `attrs`: extra global attributes.
+    - `forces`: the applied forces of the run (an `AbstractForce`, e.g. a
+      scenario's): adds `applied_force`, $F(t, Y, \\dot Y)$ at the saved samples
+      on every body (zero rows for bodies without a force).
     """
     import xarray as xr
 
@@ -110,6 +115,12 @@ def trajectory_to_xarray(
             {"long_name": _ENERGIES[name], "units": "J"},
         )
     per_coordinate("elastic_force", traj.elastic_forces(), "elastic force dPi/dY")
+    if forces is not None:
+        per_coordinate(
+            "applied_force",
+            applied_forces(forces, traj),
+            "generalized force applied by the manipulators (and on the object)",
+        )
     if traj.reaction is not None:
         per_coordinate(
             "reaction", traj.reaction, "generalized force holding the prescribed motion"
@@ -122,6 +133,7 @@ def trajectory_to_xarray(
         {"units": "kg m^2", "long_name": "principal moments of inertia A, B, C"},
     )
     ds = ds.assign_coords(principal_axis=["A", "B", "C"])
+    conns = None
     if isinstance(model, MobileModel):
         pairs = np.asarray(model.pairs)
         conns = _conn_names(connection_names, pairs, bodies)
@@ -186,7 +198,7 @@ def trajectory_to_xarray(
             "gravity_units": "m/s^2 along -z",
             "n_bodies": n,
             "status": int(traj.status),
-            "status_message": status_message(traj),
+            "status_message": status_message(traj, bodies, conns),
             "event_time": float(traj.event_time),
             "elasticoop_version": __version__,
         }
@@ -194,6 +206,21 @@ def trajectory_to_xarray(
     for key, value in (attrs or {}).items():
         ds.attrs[key] = value if not isinstance(value, bool) else int(value)
     return ds
+
+
+def applied_forces(forces, traj) -> np.ndarray:
+    """$F(t, Y, \\dot Y)$ of `forces` (an `AbstractForce`) at the saved samples of
+    `traj`, `(times, bodies, 6)` (NaN where the state is)."""
+    values = np.asarray(_applied(forces, traj.ts, traj.y, traj.ydot))
+    missing = traj.model.n_bodies - values.shape[1]  # 1: no row for the object
+    return np.concatenate([np.zeros((len(values), missing, 6)), values], axis=1)
+
+
+@eqx.filter_jit
+def _applied(forces, ts, y, ydot):
+    import jax
+
+    return jax.vmap(forces)(ts, y, ydot)
 
 
 def dataset_to_frame(ds) -> "pandas.DataFrame":
