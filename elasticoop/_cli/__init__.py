@@ -10,11 +10,11 @@ import contextlib
 import sys
 
 from .._cache import compilation_cache
-from . import check, demo, examples, modes, run
+from . import check, demo, examples, identify, modes, run
 from ._common import UserError, named_paths, report_user_errors
 
-COMMANDS = (run, check, demo, examples, modes)
-CACHED = ("run", "demo", "modes")
+COMMANDS = (run, check, demo, examples, modes, identify)
+CACHED = ("run", "demo", "modes", "identify")
 
 
 def build_parser() -> argparse.ArgumentParser:

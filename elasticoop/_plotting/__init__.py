@@ -1,5 +1,9 @@
 """Plots of a trajectory (matplotlib); every function returns the Figure."""
 
+from .identification import (
+    plot_fit as plot_fit,
+    plot_loss_history as plot_loss_history,
+)
 from .modes import plot_mode_shapes as plot_mode_shapes
 from .time_series import (
     elastic_load_count as elastic_load_count,
