@@ -27,10 +27,12 @@ from ._analysis import (  # noqa: E402
 )
 from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
 from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
-from ._config import (  # noqa: E402, I001  # noqa: E402
+from ._config import (  # noqa: E402
+    DataFileError as DataFileError,
     ScenarioError as ScenarioError,
     StudyFile as StudyFile,
     StudyFileError as StudyFileError,
+    load_experiment as load_experiment,
     load_scenario as load_scenario,
     load_study as load_study,
 )
@@ -90,6 +92,8 @@ from ._plotting import (  # noqa: E402
     plot_coordinates as plot_coordinates,
     plot_elastic_wrench as plot_elastic_wrench,
     plot_energy as plot_energy,
+    plot_fit as plot_fit,
+    plot_loss_history as plot_loss_history,
     plot_mode_shapes as plot_mode_shapes,
     plot_snapshots as plot_snapshots,
     plot_study_histograms as plot_study_histograms,

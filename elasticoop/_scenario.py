@@ -50,6 +50,28 @@ class PrescribedSpec:
         return PrescribedMotion(self.mask, SplineMotion(self.ts, self.values))
 
 
+@dataclasses.dataclass(frozen=True)
+class IdentifySpec:
+    """What `elasticoop identify` fits, from a scenario's `[identify]` table.
+
+    - `fit`: the quantities fitted, of `"stiffness"`, `"damping"` (per connection
+      and axis), `"mass"` and `"inertia"` (per body).
+    - `connections`, `axes`: the connections (by name) and axes (coordinate names)
+      whose stiffness and damping are fitted; `None`: all.
+    - `bodies`: the bodies (by name) whose mass and inertia are fitted; `None`: all.
+    - `max_iterations`, `method`, `init`: passed to `identify` (as `max_steps`,
+      `method`, `init`).
+    """
+
+    fit: tuple[str, ...] = ("stiffness", "damping")
+    connections: tuple[str, ...] | None = None
+    axes: tuple[str, ...] | None = None
+    bodies: tuple[str, ...] | None = None
+    max_iterations: int = 100
+    method: str = "levenberg-marquardt"
+    init: str = "equation_error"
+
+
 class Scenario(eqx.Module):
     """A complete simulation set-up: model, initial state, output times, forces,
     solver settings and the names of bodies and connections.
@@ -73,6 +95,7 @@ class Scenario(eqx.Module):
     prescribed: PrescribedSpec | None = None
     description: str = eqx.field(static=True, default="")
     source: str | None = eqx.field(static=True, default=None)
+    identify: IdentifySpec | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         self.options  # validates solver, rtol, atol and max_steps

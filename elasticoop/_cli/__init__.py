@@ -10,11 +10,11 @@ import contextlib
 import sys
 
 from .._cache import compilation_cache
-from . import check, demo, examples, modes, montecarlo, run
+from . import check, demo, examples, identify, modes, montecarlo, run
 from ._common import UserError, named_paths, report_user_errors
 
-COMMANDS = (run, check, demo, examples, modes, montecarlo)
-CACHED = ("run", "demo", "modes")
+COMMANDS = (run, check, demo, examples, modes, identify, montecarlo)
+CACHED = ("run", "demo", "modes", "identify")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -24,7 +24,7 @@ EXIT_SIMULATION = 3  # the simulation stopped early (gimbal lock, collapsed link
 
 # The arguments, over all sub-commands, that name files or folders: an `OSError`
 # about one of them (or about a file inside or a folder above one) is the user's.
-PATH_ARGUMENTS = ("scenario", "scenarios", "output", "copy")
+PATH_ARGUMENTS = ("scenario", "scenarios", "data", "output", "copy")
 
 
 class UserError(Exception):

@@ -19,8 +19,9 @@ from .._models.immobile import check_stiffness, check_symmetric_psd
 from .._naming import coordinate_names
 from .._options import GIMBAL_TOL
 from .._rotations import get_rotation
-from .._scenario import PrescribedSpec, Scenario
+from .._scenario import IdentifySpec, PrescribedSpec, Scenario
 from .data_files import read_matrix, read_series
+from .identify_settings import identify_spec_problems
 from .initial import (
     INITIAL_FROM,
     equilibrium_start,
@@ -566,6 +567,26 @@ class _Builder:
             forces = eqx.tree_at(lambda f: f.y_ref, forces, jnp.asarray(y_init[1:]))
         return y_init, prescribed, forces
 
+    def identify_spec(self, kind, conns) -> IdentifySpec | None:
+        table = self.s.get("identify")
+        if table is None or self.names is None:
+            return None
+        spec = IdentifySpec(
+            fit=tuple(table.fit),
+            connections=None if table.connections is None else tuple(table.connections),
+            axes=None if table.axes is None else tuple(table.axes),
+            bodies=None if table.bodies is None else tuple(table.bodies),
+            max_iterations=table.max_iterations,
+            method=table.method,
+            init=table.init,
+        )
+        labels = conns[1] if conns is not None else ()
+        convention = self.model_table.convention if self.model_table else "zxz"
+        problems = identify_spec_problems(spec, kind, convention, self.names, labels)
+        for key, message in problems:
+            self.add("[identify]", key, message)
+        return spec
+
     # -- stage 3: build --------------------------------------------------------------
     def build(self) -> Scenario:
         self.validate_tables()
@@ -610,6 +631,7 @@ class _Builder:
             matrices = self.immobile_matrices()
         forces = self.forces()
         prescribed = self.prescribed()
+        identify = self.identify_spec(kind, conns)
         self.problems.raise_if_any()
 
         bodies = self.rigid_bodies
@@ -650,6 +672,7 @@ class _Builder:
             prescribed=prescribed,
             description=self.info.description,
             source=self.source,
+            identify=identify,
         )
 
 

@@ -152,3 +152,34 @@ class Problems:
 
     def __bool__(self):
         return bool(self.items)
+
+
+class DataProblem(NamedTuple):
+    """One problem of a measured-data file: the column (`""` for none) and the
+    line of a CSV file or sample of a netCDF file (`""` for none) it lies in."""
+
+    column: str
+    row: str  # e.g. "line 7", "sample 12 (t = 0.11 s)"
+    message: str
+
+
+class DataFileError(ScenarioError):
+    """A measured-data file is invalid; `.problems` lists every problem found
+    (`DataProblem`: column, row and message), and `str(error)` names the file and
+    all of them."""
+
+    def __init__(self, source: str, problems: list[DataProblem]):
+        self.source = str(source)
+        self.problems = list(problems)  # type: ignore[arg-type]
+        ValueError.__init__(self, format_data_problems(self.source, problems))
+
+
+def format_data_problems(source: str, problems: list[DataProblem]) -> str:
+    n = len(problems)
+    lines = [f"{source}: {n} problem{'s' if n != 1 else ''} in the data file:"]
+    for p in problems:
+        where = ", ".join(
+            part for part in (f"column '{p.column}'" if p.column else "", p.row) if part
+        )
+        lines.append(f"  - {where}: {p.message}" if where else f"  - {p.message}")
+    return "\n".join(lines)

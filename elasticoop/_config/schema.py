@@ -237,6 +237,26 @@ class PrescribedTable(Table):
     motion: Annotated[MotionCsv | None, BeforeValidator(_motion)] = None
 
 
+FITTED_QUANTITIES = ("stiffness", "damping", "mass", "inertia")
+IDENTIFY_METHODS = ("levenberg-marquardt", "lbfgs")
+
+
+class IdentifyTable(Table):
+    """`[identify]`: what `elasticoop identify` fits, and how (command-line options
+    override each key). Names are checked against the scenario when it is built."""
+
+    fit: Annotated[list[Literal[FITTED_QUANTITIES]], Field(min_length=1)] = [  # type: ignore[valid-type]
+        "stiffness",
+        "damping",
+    ]
+    connections: Annotated[list[str], Field(min_length=1)] | None = None
+    axes: Annotated[list[str], Field(min_length=1)] | None = None
+    bodies: Annotated[list[Name], Field(min_length=1)] | None = None
+    max_iterations: Annotated[int, Field(ge=1, le=100_000)] = 100
+    method: Literal[IDENTIFY_METHODS] = "levenberg-marquardt"  # type: ignore[valid-type]
+    init: Literal["equation_error", "model"] = "equation_error"
+
+
 # Top-level layout: table name -> (schema, shape): "table", "array" (array of
 # tables) or "by_body" (a table of tables keyed by body name).
 SECTIONS = {
@@ -250,6 +270,7 @@ SECTIONS = {
     "prescribed": (PrescribedTable, "table"),
     "time": (TimeTable, "table"),
     "solver": (SolverTable, "table"),
+    "identify": (IdentifyTable, "table"),
 }
 REQUIRED = ("model", "bodies", "initial", "time")
 TOP_LEVEL_KEYS = ("name", "description")

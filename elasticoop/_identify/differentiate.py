@@ -13,6 +13,7 @@ this module adds the checks on the sampling and the window.
 """
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 from scipy.signal import savgol_filter
 
 
@@ -63,9 +64,19 @@ def savitzky_golay(
             "resample the data or pass measured ydot/yddot"
         )
     flat = values.reshape(n, -1)
-    return tuple(
-        savgol_filter(
-            flat, window, polyorder, deriv=d, delta=step, axis=0, mode="interp"
-        ).reshape(values.shape)
-        for d in derivs
-    )
+    missing = np.isnan(flat)
+    # scipy refuses NaN: filter with the gaps set to 0, then mark every estimate
+    # whose window holds a missing sample (near the ends: the first or last
+    # `window` samples, which the end polynomials are fitted to)
+    half = window // 2
+    touched = maximum_filter1d(missing.astype(np.uint8), window, axis=0) > 0
+    touched[:half] = np.any(missing[:window], axis=0)
+    touched[n - half :] = np.any(missing[n - window :], axis=0)
+    filled = np.where(missing, 0.0, flat)
+    out = []
+    for d in derivs:
+        estimate = savgol_filter(
+            filled, window, polyorder, deriv=d, delta=step, axis=0, mode="interp"
+        )
+        out.append(np.where(touched, np.nan, estimate).reshape(values.shape))
+    return tuple(out)

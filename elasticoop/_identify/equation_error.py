@@ -60,7 +60,15 @@ def _affine_system(model, free: FreeParameters, p0, ts, y, ydot, yddot, force):
     return e0, jax.jacfwd(residual)(p0)
 
 
-def equation_error(model, experiments, where, *, window: int = 21, polyorder: int = 4):
+def equation_error(
+    model,
+    experiments,
+    where,
+    *,
+    window: int = 21,
+    polyorder: int = 4,
+    mask=None,
+):
     """Estimate the free parameters by equation error (see the module docstring).
 
     **Arguments:**
@@ -72,13 +80,14 @@ def equation_error(model, experiments, where, *, window: int = 21, polyorder: in
     - `where`: selects the free leaves, e.g. `lambda m: (m.stiffness, m.damping)`.
     - `window`, `polyorder`: the Savitzky-Golay window (odd number of samples) and
       polynomial degree, used where $\\dot Y$ or $\\ddot Y$ were not measured.
+    - `mask`: the free entries of the selected leaves, as for `identify`.
 
     **Returns:** `model` with the free leaves set to the least-squares estimate.
     With noisy data an estimate may leave the physical range (e.g. a negative
     damping); `identify` then starts that entry from the value in `model`.
     """
     experiments = check_experiments(model, experiments)
-    free = free_parameters(model, where, "identity")
+    free = free_parameters(model, where, "identity", mask)
     p0 = jnp.asarray(free.current(model))
     blocks, rhs = [], []
     for k, e in enumerate(experiments):

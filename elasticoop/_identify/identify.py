@@ -51,6 +51,7 @@ def identify(
     polyorder: int = 4,
     rcond: float = 1e-8,
     max_relative_stderr: float = 0.5,
+    mask=None,
 ) -> IdentificationResult:
     """Fit the free parameters of `model` to measured motion by output error.
 
@@ -101,6 +102,10 @@ def identify(
     - `window`, `polyorder`: Savitzky-Golay smoothing of the equation-error start.
     - `rcond`, `max_relative_stderr`: identifiability thresholds (see
       `gauss_newton_uncertainty`).
+    - `mask`: fit only some entries of the selected leaves: boolean arrays in the
+      structure of `where(model)`, each shaped like its leaf (`None` for a whole
+      leaf), e.g. `(k_mask, None)`; the other entries keep the model's values,
+      and `stderr` is NaN there. Default: every entry is free.
 
     **Returns:** an `IdentificationResult` (`.model`, `.stderr`, `.loss_history`,
     `.converged`, `.table`, `.report()`, ...).
@@ -117,7 +122,7 @@ def identify(
     """
     start_time = time.perf_counter()
     experiments = check_experiments(model, experiments)
-    free = free_parameters(model, where, transform)
+    free = free_parameters(model, where, transform, mask)
     optimizer, method_name = _optimizer(method)
     value: float
     for name, value in (("max_steps", max_steps),):
@@ -148,19 +153,29 @@ def identify(
     start = free.current(model)
     candidates = []  # (label, parameters), evaluated by their simulated loss
     if init == "equation_error":
-        guess = free.current(
-            equation_error(
-                model, experiments, where, window=window, polyorder=polyorder
+        try:
+            guess = free.current(
+                equation_error(
+                    model,
+                    experiments,
+                    where,
+                    window=window,
+                    polyorder=polyorder,
+                    mask=mask,
+                )
             )
-        )
-        guess, outside = _within_range(free, guess, start)
-        if outside:
-            notes.append(
-                "equation-error estimate outside the parameter range for "
-                + ", ".join(outside)
-                + "; took the model's values there"
-            )
-        candidates.append(("the equation-error start", guess))
+        except ValueError as err:  # e.g. too many missing samples to differentiate
+            notes.append(f"no equation-error start ({err}); started from the model")
+            guess = None
+        if guess is not None:
+            guess, outside = _within_range(free, guess, start)
+            if outside:
+                notes.append(
+                    "equation-error estimate outside the parameter range for "
+                    + ", ".join(outside)
+                    + "; took the model's values there"
+                )
+            candidates.append(("the equation-error start", guess))
     try:
         free.unconstrained(start)
         candidates.append(("the model's values", start))
@@ -281,8 +296,7 @@ def _optimizer(method):
 def _within_range(free, guess, fallback):
     """Entries of `guess` inside each transform's range; others from `fallback`."""
     out, outside, start = np.array(guess, dtype=np.float64), [], 0
-    for shape, t in zip(free.shapes, free.transforms):
-        n = int(np.prod(shape))
+    for n, t in zip(free.counts, free.transforms):
         for k in range(start, start + n):
             try:
                 t.inverse(np.asarray(out[k : k + 1]), free.names[k])

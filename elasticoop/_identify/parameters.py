@@ -119,25 +119,37 @@ class FreeParameters(eqx.Module):
     Built once from `where` (a function selecting leaves, as for
     `equinox.tree_at`); afterwards the free leaves are addressed by their position
     in `jax.tree.leaves(model)`, so nothing here holds `where` itself and a second
-    fit of the same shapes reuses the compiled functions.
+    fit of the same shapes reuses the compiled functions. `entries` names, per
+    leaf, the flat positions of its free entries (`None`: all of them); the other
+    entries of a leaf keep the model's values.
     """
 
     indices: tuple[int, ...] = eqx.field(static=True)
     shapes: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    entries: tuple[tuple[int, ...] | None, ...] = eqx.field(static=True)
     names: tuple[str, ...] = eqx.field(static=True)
     transforms: tuple[AbstractTransform, ...]
     structure: jax.tree_util.PyTreeDef = eqx.field(static=True)
 
     @property
+    def counts(self) -> tuple[int, ...]:
+        """Number of free entries of each free leaf."""
+        return tuple(
+            int(np.prod(shape)) if entries is None else len(entries)
+            for shape, entries in zip(self.shapes, self.entries)
+        )
+
+    @property
     def size(self) -> int:
-        return int(sum(int(np.prod(s)) for s in self.shapes))
+        return int(sum(self.counts))
 
     def split(self, flat):
-        """Cut a flat vector into one array per free leaf."""
+        """Cut a flat vector into one array per free leaf (shaped like the leaf,
+        or a flat vector of the free entries where only some are free)."""
         out, start = [], 0
-        for shape in self.shapes:
-            n = int(np.prod(shape))
-            out.append(flat[start : start + n].reshape(shape))
+        for shape, entries, n in zip(self.shapes, self.entries, self.counts):
+            piece = flat[start : start + n]
+            out.append(piece.reshape(shape) if entries is None else piece)
             start += n
         return out
 
@@ -152,8 +164,12 @@ class FreeParameters(eqx.Module):
     def apply(self, model, u: jax.Array):
         """`model` with its free leaves set to $g(u)$."""
         leaves, treedef = jax.tree.flatten(model)
-        for index, value in zip(self.indices, self.values(u)):
-            leaves[index] = value.astype(leaves[index].dtype)
+        for index, entries, value in zip(self.indices, self.entries, self.values(u)):
+            leaf = jnp.asarray(leaves[index])
+            if entries is not None:
+                at = jnp.asarray(entries)
+                value = leaf.reshape(-1).at[at].set(value).reshape(leaf.shape)
+            leaves[index] = value.astype(leaf.dtype)
         return jax.tree.unflatten(treedef, leaves)
 
     def unconstrained(self, p) -> np.ndarray:
@@ -169,7 +185,11 @@ class FreeParameters(eqx.Module):
     def current(self, model) -> np.ndarray:
         """The free values of `model` as one flat vector."""
         leaves = jax.tree.leaves(model)
-        return np.concatenate([np.asarray(leaves[i]).reshape(-1) for i in self.indices])
+        parts = []
+        for index, entries in zip(self.indices, self.entries):
+            flat = np.asarray(leaves[index]).reshape(-1)
+            parts.append(flat if entries is None else flat[list(entries)])
+        return np.concatenate(parts)
 
     @property
     def leaf_names(self) -> tuple[str, ...]:
@@ -177,19 +197,27 @@ class FreeParameters(eqx.Module):
 
     def _leaf_first_names(self):
         out, start = [], 0
-        for shape in self.shapes:
+        for n in self.counts:
             out.append(self.names[start])
-            start += int(np.prod(shape))
+            start += n
         return out
 
     def unflatten(self, flat):
-        """A flat vector (e.g. standard errors) in the structure of `where(model)`."""
-        return jax.tree.unflatten(
-            self.structure, [np.asarray(x) for x in self.split(np.asarray(flat))]
-        )
+        """A flat vector (e.g. standard errors) in the structure of `where(model)`,
+        NaN at the entries that are not free."""
+        parts = []
+        for shape, entries, x in zip(
+            self.shapes, self.entries, self.split(np.asarray(flat))
+        ):
+            if entries is not None:
+                full = np.full(int(np.prod(shape)), np.nan)
+                full[list(entries)] = x
+                x = full.reshape(shape)
+            parts.append(np.asarray(x))
+        return jax.tree.unflatten(self.structure, parts)
 
 
-def free_parameters(model, where, transform="log") -> FreeParameters:
+def free_parameters(model, where, transform="log", mask=None) -> FreeParameters:
     """Resolve `where(model)` into a `FreeParameters`.
 
     **Arguments:**
@@ -199,6 +227,10 @@ def free_parameters(model, where, transform="log") -> FreeParameters:
       `lambda m: (m.stiffness, m.damping)`; it must select whole array leaves.
     - `transform`: a name (`"log"`, `"softplus"`, `"identity"`), an
       `AbstractTransform`, or a sequence of these with one entry per selected leaf.
+    - `mask`: which entries of the selected leaves are free: `None` (all), or
+      boolean arrays in the structure of `where(model)`, each shaped like its
+      leaf (`None` in place of an array frees that whole leaf). Entries where the
+      mask is False keep the model's values.
     """
     if not callable(where):
         raise ValueError(
@@ -248,16 +280,50 @@ def free_parameters(model, where, transform="log") -> FreeParameters:
             )
         transforms = tuple(as_transform(t) for t in transform)
     shapes = tuple(tuple(int(s) for s in np.shape(leaves[i])) for i in indices)
-    names = []
-    for index, shape in zip(indices, shapes):
-        names += _entry_names(model, paths[index].lstrip("."), shape)
+    entries = _mask_entries(mask, structure, shapes, [paths[i] for i in indices])
+    names: list[str] = []
+    for index, shape, free in zip(indices, shapes, entries):
+        every = _entry_names(model, paths[index].lstrip("."), shape)
+        names += every if free is None else [every[k] for k in free]
     return FreeParameters(
         indices=indices,
         shapes=shapes,
+        entries=entries,
         names=tuple(names),
         transforms=transforms,
         structure=structure,
     )
+
+
+def _mask_entries(mask, structure, shapes, paths):
+    """The flat positions of the free entries of each leaf (`None`: all)."""
+    if mask is None:
+        return tuple(None for _ in shapes)
+    try:
+        masks = structure.flatten_up_to(mask)
+    except (ValueError, TypeError):
+        raise ValueError(
+            f"mask must have the structure of where(model) ({len(shapes)} leaves: "
+            f"one boolean array or None per selected leaf), got {mask!r}"
+        ) from None
+    out: list[tuple[int, ...] | None] = []
+    for m, shape, path in zip(masks, shapes, paths):
+        if m is None:
+            out.append(None)
+            continue
+        arr = np.asarray(m)
+        if arr.dtype != bool or arr.shape != shape:
+            raise ValueError(
+                f"mask of {path.lstrip('.')} must be a boolean array of shape "
+                f"{shape}, got {arr.dtype} of shape {arr.shape}"
+            )
+        if not arr.any():
+            raise ValueError(
+                f"mask of {path.lstrip('.')} frees no entry: leave the leaf out of "
+                f"where instead"
+            )
+        out.append(tuple(int(k) for k in np.flatnonzero(arr.reshape(-1))))
+    return tuple(out)
 
 
 class _Label:

@@ -8,6 +8,7 @@ an older run.
 
 import contextlib
 import dataclasses
+import fnmatch
 import os
 import pathlib
 import secrets
@@ -29,8 +30,21 @@ RESULT_FILES = frozenset(
         "animation.mp4",
         "modes.json",
         "modes.png",
+        "fitted_scenario.toml",
+        "report.txt",
+        "report.json",
+        "loss_history.png",
     }
 )
+# ... and the files named by these patterns (one per data file of a fit).
+RESULT_PATTERNS = ("fit_*.png",)
+
+
+def is_result_file(name: str) -> bool:
+    """Whether `name` is the name of a file the command line writes."""
+    return name in RESULT_FILES or any(
+        fnmatch.fnmatchcase(name, pattern) for pattern in RESULT_PATTERNS
+    )
 
 
 class OutputFolderError(Exception):
@@ -61,8 +75,8 @@ class OutputFolder:
 
     - `path`: the folder (created with its parents if missing).
     - `overwrite`: replace the folder if it holds files; without it, a folder that
-      holds files is refused. Only a folder holding nothing but `RESULT_FILES` is
-      replaced.
+      holds files is refused. Only a folder holding nothing but result files
+      (`is_result_file`) is replaced.
     - `keep`: `(path, what it is)` of files and folders that must survive (the
       scenario file, the current folder): the output folder may not be or hold
       one of them.
@@ -126,7 +140,7 @@ class OutputFolder:
         foreign = [
             name
             for name in entries
-            if name not in RESULT_FILES or not (self.path / name).is_file()
+            if not is_result_file(name) or not (self.path / name).is_file()
         ]
         if foreign:
             raise OutputFolderError(

@@ -1,6 +1,10 @@
 """Plots of a trajectory and of a Monte Carlo study's results (matplotlib); every
 function returns the Figure."""
 
+from .identification import (
+    plot_fit as plot_fit,
+    plot_loss_history as plot_loss_history,
+)
 from .modes import plot_mode_shapes as plot_mode_shapes
 from .montecarlo import (
     plot_study_histograms as plot_study_histograms,
