@@ -63,9 +63,25 @@ def savitzky_golay(
             "resample the data or pass measured ydot/yddot"
         )
     flat = values.reshape(n, -1)
-    return tuple(
-        savgol_filter(
-            flat, window, polyorder, deriv=d, delta=step, axis=0, mode="interp"
-        ).reshape(values.shape)
-        for d in derivs
+    missing = np.isnan(flat)
+    filled = np.where(missing, 0.0, flat)
+    spoilt = _windows_with(missing, window)
+    out = []
+    for d in derivs:
+        est = savgol_filter(
+            filled, window, polyorder, deriv=d, delta=step, axis=0, mode="interp"
+        )
+        out.append(np.where(spoilt, np.nan, est).reshape(values.shape))
+    return tuple(out)
+
+
+def _windows_with(missing, window: int):
+    """Whether the samples each estimate is fitted to (the `window` samples centred
+    on it; the first or last `window` near the ends) include a missing one."""
+    n, half = missing.shape[0], window // 2
+    counts = np.concatenate(
+        [np.zeros((1, missing.shape[1])), np.cumsum(missing, axis=0)]
     )
+    k = np.arange(n)
+    lo = np.clip(k - half, 0, n - window)  # the first sample of each window
+    return (counts[lo + window] - counts[lo]) > 0
