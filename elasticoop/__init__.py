@@ -56,6 +56,7 @@ from ._identify import (  # noqa: E402
     equation_error as equation_error,
     gauss_newton_uncertainty as gauss_newton_uncertainty,
     identify as identify,
+    initial_state_from_data as initial_state_from_data,
     savitzky_golay as savitzky_golay,
 )
 from ._io.xarray import trajectory_to_xarray as trajectory_to_xarray  # noqa: E402

@@ -322,6 +322,11 @@ def minimum_jerk(s: Scalar) -> Scalar:
     return s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
 
 
+def _float64(value: ArrayInput) -> Float[Array, "..."]:
+    """`value` as a float64 JAX array (a field converter)."""
+    return jnp.asarray(value, dtype=jnp.float64)
+
+
 class PoseTracking(AbstractForce):
     """Manipulators as PD controllers on the grasp poses plus a weight feedforward.
 
@@ -329,14 +334,18 @@ class PoseTracking(AbstractForce):
     ($s$ the minimum-jerk profile, its rate by forward-mode autodiff):
     $F_i = F^{ff} + K_p (Y_i^{ref} - Y_i) + K_d (\\dot Y_i^{ref} - \\dot Y_i)$,
     gains per coordinate (translations [N/m], Euler angles [N m/rad]).
+
+    Every field is stored as a float64 array, whatever it is given as (Python
+    numbers or lists too): the force is then a pytree of arrays that can be
+    differentiated, `vmap`-ped and batched like any other input.
     """
 
-    y_ref: Float[Array, "m 6"]  # initial grasp poses
-    feedforward: Float[Array, "m 6"]
-    kp: Float[Array, "6"]
-    kd: Float[Array, "6"]
-    height: Scalar
-    duration: Scalar
+    y_ref: Float[Array, "m 6"] = eqx.field(converter=_float64)  # initial poses
+    feedforward: Float[Array, "m 6"] = eqx.field(converter=_float64)
+    kp: Float[Array, "6"] = eqx.field(converter=_float64)
+    kd: Float[Array, "6"] = eqx.field(converter=_float64)
+    height: Scalar = eqx.field(converter=_float64)
+    duration: Scalar = eqx.field(converter=_float64)
 
     def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
         lift = jnp.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])

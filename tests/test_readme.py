@@ -212,10 +212,13 @@ def test_identification(readme):
     assert np.all(relative[0] < 0.003) and np.all(relative[1] < 0.17)
     assert np.all(np.isinf(stderr[~ok]))
     assert "NOT IDENTIFIABLE" in result.report()
-    # the flagged entries keep the fit's start (`initial`), here the equation-error
-    # start, far from the model's values (`start`) for some of them
-    np.testing.assert_allclose(result.estimate[~ok], result.initial[~ok], rtol=1e-12)
+    # the flagged entries are held at the model's values (`start`), not returned
+    # at the fit's start (`initial`), here the equation-error start, which is far
+    # from them for some entries
+    np.testing.assert_array_equal(result.held, ~ok)
+    np.testing.assert_array_equal(result.estimate[~ok], result.start[~ok])
     assert np.max(result.initial[~ok] / result.start[~ok]) > 10
+    assert "held at start" in result.report()
     np.testing.assert_allclose(leaves(result.model), result.estimate)
 
 

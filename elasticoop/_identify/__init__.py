@@ -5,6 +5,7 @@ from .differentiate import savitzky_golay as savitzky_golay
 from .equation_error import equation_error as equation_error
 from .experiment import Experiment as Experiment
 from .identify import identify as identify
+from .initial_state import initial_state_from_data as initial_state_from_data
 from .parameters import (
     AbstractTransform as AbstractTransform,
     Bounded as Bounded,

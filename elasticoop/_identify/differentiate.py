@@ -13,7 +13,6 @@ this module adds the checks on the sampling and the window.
 """
 
 import numpy as np
-from scipy.ndimage import maximum_filter1d
 from scipy.signal import savgol_filter
 
 
@@ -65,18 +64,24 @@ def savitzky_golay(
         )
     flat = values.reshape(n, -1)
     missing = np.isnan(flat)
-    # scipy refuses NaN: filter with the gaps set to 0, then mark every estimate
-    # whose window holds a missing sample (near the ends: the first or last
-    # `window` samples, which the end polynomials are fitted to)
-    half = window // 2
-    touched = maximum_filter1d(missing.astype(np.uint8), window, axis=0) > 0
-    touched[:half] = np.any(missing[:window], axis=0)
-    touched[n - half :] = np.any(missing[n - window :], axis=0)
     filled = np.where(missing, 0.0, flat)
+    spoilt = _windows_with(missing, window)
     out = []
     for d in derivs:
-        estimate = savgol_filter(
+        est = savgol_filter(
             filled, window, polyorder, deriv=d, delta=step, axis=0, mode="interp"
         )
-        out.append(np.where(touched, np.nan, estimate).reshape(values.shape))
+        out.append(np.where(spoilt, np.nan, est).reshape(values.shape))
     return tuple(out)
+
+
+def _windows_with(missing, window: int):
+    """Whether the samples each estimate is fitted to (the `window` samples centred
+    on it; the first or last `window` near the ends) include a missing one."""
+    n, half = missing.shape[0], window // 2
+    counts = np.concatenate(
+        [np.zeros((1, missing.shape[1])), np.cumsum(missing, axis=0)]
+    )
+    k = np.arange(n)
+    lo = np.clip(k - half, 0, n - window)  # the first sample of each window
+    return (counts[lo + window] - counts[lo]) > 0

@@ -1,5 +1,7 @@
 """`Experiment`: one recorded motion (data), validated, and batched for `vmap`."""
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -7,6 +9,7 @@ import numpy as np
 
 from .._forces import AbstractForce, check_force
 from .._validation import check_times
+from .initial_state import initial_state_from_data
 
 
 class Experiment(eqx.Module):
@@ -17,9 +20,20 @@ class Experiment(eqx.Module):
     - `ts`: sample times [s], strictly increasing, shape `(times,)`.
     - `y`: measured $Y(t)$, shape `(times, bodies, 6)`; NaN marks a missing sample.
     - `y_init`, `ydot_init`: the initial state $Y(t_0)$, $\\dot Y(t_0)$ the
-      simulation starts from, shape `(bodies, 6)` (known, not fitted).
+      simulation starts from, shape `(bodies, 6)`: known values, or the start of
+      their estimates when `identify(..., fit_initial=...)` estimates them. `None`
+      (the default) takes them from the measured motion
+      (`initial_state_from_data` with `window` and `polyorder`: the first sample
+      of `y`, and the Savitzky-Golay derivative at $t_0$; uniformly spaced `ts`,
+      the first `window` samples measured), or `ydot_init` from the first sample
+      of a measured `ydot`. A
+      rate taken from noisy data is only approximate: estimate it with the
+      parameters (`fit_initial="rates"` or `"state"`) unless it is known.
     - `forces`: the applied forces, as accepted by `simulate` (`None`, an array
-      `(m, 6)`, a `ConstantForce`, `SampledForce` or a callable).
+      `(m, 6)`, a `ConstantForce`, `SampledForce`, `PoseTracking`, any other
+      `AbstractForce` or a callable). Leaves of the force that are not arrays (e.g.
+      a Python float in a force of one's own) are constants: experiments batched
+      together must agree on them.
     - `sigma`: noise level (standard deviation) of `y`: a scalar, one value per
       coordinate `(6,)` or per body and coordinate `(bodies, 6)`. Residuals are
       divided by it. `None` weights every coordinate by 1 and lets the fit estimate
@@ -31,6 +45,8 @@ class Experiment(eqx.Module):
       `ydot` when `sigma` is given).
     - `yddot`: optional measured $\\ddot Y(t)$ (used only by the equation-error
       initialiser).
+    - `window`, `polyorder`: the differentiator that takes a missing `y_init` or
+      `ydot_init` from the data (not stored).
 
     Bad data (wrong shapes, a time grid that does not match `y`, a body coordinate
     that is NaN in every sample, non-positive `sigma`) raises `ValueError`.
@@ -50,23 +66,33 @@ class Experiment(eqx.Module):
         self,
         ts,
         y,
-        y_init,
-        ydot_init,
+        y_init=None,
+        ydot_init=None,
         forces=None,
         sigma=None,
         *,
         ydot=None,
         sigma_ydot=None,
         yddot=None,
+        window: int = 21,
+        polyorder: int = 4,
     ):
         ts = check_times(ts, "Experiment.ts")
         n_times = ts.shape[0]
         y = _series(y, "Experiment.y", n_times)
         n_bodies = y.shape[1]
-        y_init = _state(y_init, "Experiment.y_init", n_bodies)
-        ydot_init = _state(ydot_init, "Experiment.ydot_init", n_bodies)
         if ydot is not None:
             ydot = _series(ydot, "Experiment.ydot", n_times, n_bodies)
+            if ydot_init is None and np.all(np.isfinite(ydot[0])):
+                ydot_init = ydot[0]  # measured
+        if y_init is None or ydot_init is None:
+            y_data, ydot_data = initial_state_from_data(
+                ts, y, window, polyorder, "Experiment.y"
+            )
+            y_init = y_data if y_init is None else y_init
+            ydot_init = ydot_data if ydot_init is None else ydot_init
+        y_init = _state(y_init, "Experiment.y_init", n_bodies)
+        ydot_init = _state(ydot_init, "Experiment.ydot_init", n_bodies)
         if yddot is not None:
             yddot = _series(yddot, "Experiment.yddot", n_times, n_bodies, nan_ok=False)
         if sigma is not None:
@@ -196,14 +222,37 @@ def check_experiments(model, experiments) -> list[Experiment]:
     return experiments
 
 
+def _constant_key(value: Any) -> Any:
+    """A non-array leaf as part of a batch's signature: itself when hashable (equal
+    constants batch together), otherwise its identity."""
+    try:
+        hash(value)
+    except TypeError:
+        return ("object", id(value))
+    return ("constant", type(value), value)
+
+
 def _signature(e: Experiment):
+    """What experiments batched together share: the tree structure, the shape and
+    dtype of every array leaf, and the value of every other leaf (a constant of a
+    force, e.g. a Python float)."""
     leaves, treedef = jax.tree.flatten(e)
-    return treedef, tuple((x.shape, x.dtype) for x in leaves)
+    return treedef, tuple(
+        (x.shape, x.dtype) if eqx.is_array(x) else _constant_key(x) for x in leaves
+    )
+
+
+def _stack(*xs):
+    """Array leaves stacked along a new leading axis; constants, equal across the
+    batch, kept once."""
+    return jnp.stack(xs) if eqx.is_array(xs[0]) else xs[0]
 
 
 def batch_experiments(experiments) -> list[tuple[list[int], Experiment]]:
-    """Group experiments of equal shapes and stack each group along a new leading
-    axis, so that a group is simulated by one `vmap`-ed call.
+    """Group experiments of equal shapes (and equal non-array leaves, e.g. the
+    Python floats of a force) and stack each group's arrays along a new leading
+    axis, so that a group is simulated by one `vmap`-ed call
+    (`equinox.filter_vmap`: the non-array leaves are not mapped over).
 
     **Returns:** a list of `(indices, stacked)`, `indices` naming the experiments
     of the group in input order.
@@ -214,6 +263,6 @@ def batch_experiments(experiments) -> list[tuple[list[int], Experiment]]:
     out = []
     for indices in groups.values():
         members = [experiments[k] for k in indices]
-        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *members)
+        stacked = jax.tree.map(_stack, *members)
         out.append((indices, stacked))
     return out

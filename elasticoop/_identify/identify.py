@@ -10,21 +10,27 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .._custom_types import Validated
+from .._naming import body_names as checked_body_names
 from .._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
 from .._status import Status
 from .equation_error import equation_error
 from .experiment import check_experiments
-from .optimisers import levenberg_marquardt, optax_minimise
+from .initial_state import fitted_parts, initial_state_names
+from .optimisers import Trace, levenberg_marquardt, optax_minimise
 from .parameters import free_parameters
 from .residuals import (
+    FitProblem,
+    initial_states,
     make_problem,
     residuals_and_jacobian,
     residuals_by_experiment,
+    with_held,
     with_max_steps,
 )
 from .result import IdentificationResult
 from .step_budget import START_MAX_STEPS, StepBudget
-from .uncertainty import gauss_newton_uncertainty
+from .uncertainty import Uncertainty, gauss_newton_uncertainty, with_held_stderr
 
 METHODS = ("levenberg-marquardt", "lbfgs")
 
@@ -52,6 +58,9 @@ def identify(
     rcond: float = 1e-8,
     max_relative_stderr: float = 0.5,
     mask=None,
+    fit_initial: Validated[str] = "none",
+    hold_unidentifiable: Validated[bool] = True,
+    body_names=None,
 ) -> IdentificationResult:
     """Fit the free parameters of `model` to measured motion by output error.
 
@@ -106,9 +115,31 @@ def identify(
       structure of `where(model)`, each shaped like its leaf (`None` for a whole
       leaf), e.g. `(k_mask, None)`; the other entries keep the model's values,
       and `stderr` is NaN there. Default: every entry is free.
+    - `fit_initial`: which part of each experiment's initial state is estimated
+      together with the parameters: `"none"` (default: `Experiment.y_init` and
+      `ydot_init` are known), `"rates"` ($\\dot Y(t_0)$), `"positions"`
+      ($Y(t_0)$) or `"state"` (both). The experiment's values (given, or taken
+      from the data by the differentiator) are the start; the estimates are in
+      `result.initial_states`, their standard errors in
+      `result.initial_state_stderr`, and the parameters' standard errors are
+      marginal over them (see `initial_state`).
+    - `hold_unidentifiable`: hold the parameters the data do not determine at
+      their start. When the fit ends (other than `"failed"`, which never left
+      the start) with parameters flagged not identifiable
+      (see `gauss_newton_uncertainty`), they are set to their values in `model`
+      (the optimiser's start where those are outside the transform's range) and
+      the others are fitted again, until no further parameter is flagged: a
+      flagged parameter is never returned at wherever the optimiser drifted
+      along a direction the data do not constrain. `result.held` marks them and
+      the report says so. Holding, not a penalty towards the start, leaves the
+      estimates and standard errors of the others those of a fit in which the
+      held values are known; their standard errors do not include the held
+      values' uncertainty. `False` returns the optimiser's values, flagged.
+    - `body_names`: names of the bodies in the report's initial-state entries
+      (default `object, contact1, ...`).
 
     **Returns:** an `IdentificationResult` (`.model`, `.stderr`, `.loss_history`,
-    `.converged`, `.table`, `.report()`, ...).
+    `.converged`, `.table`, `.held`, `.initial_states`, `.report()`, ...).
 
     A trial step whose simulation fails (gimbal lock, collapsed link, solver
     failure, NaN, the step budget) is rejected and the step shortened. A
@@ -124,6 +155,12 @@ def identify(
     experiments = check_experiments(model, experiments)
     free = free_parameters(model, where, transform, mask)
     optimizer, method_name = _optimizer(method)
+    fit_parts = fitted_parts(fit_initial)
+    names_of_bodies = checked_body_names(body_names, model.n_bodies)
+    if not isinstance(hold_unidentifiable, bool):
+        raise ValueError(
+            f"hold_unidentifiable must be True or False, got {hold_unidentifiable!r}"
+        )
     value: float
     for name, value in (("max_steps", max_steps),):
         if not (isinstance(value, int) and value >= 1):
@@ -149,7 +186,8 @@ def identify(
         link_tol=float(link_tol),
         owner="identify",
     )
-    problem = make_problem(model, free, experiments, options)
+    problem = make_problem(model, free, experiments, options, fit_parts)
+    no_correction = np.zeros(problem.n_initial)
     start = free.current(model)
     candidates = []  # (label, parameters), evaluated by their simulated loss
     if init == "equation_error":
@@ -176,8 +214,9 @@ def identify(
                     + "; took the model's values there"
                 )
             candidates.append(("the equation-error start", guess))
+    u_start: np.ndarray | None = None  # the model's values, reparameterised
     try:
-        free.unconstrained(start)
+        u_start = free.unconstrained(start)
         candidates.append(("the model's values", start))
     except ValueError:
         if init == "model":
@@ -185,7 +224,7 @@ def identify(
     evaluated = []
     u: np.ndarray | jax.Array
     for label, p in candidates:
-        u = free.unconstrained(p)
+        u = np.concatenate([free.unconstrained(p), no_correction])
         value, runs = _evaluate(jnp.asarray(u), problem)  # inf if failed
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
         evaluated.append((float(value), label, p, u, ok, steps))
@@ -213,45 +252,89 @@ def identify(
         n_experiments=len(experiments),
         budget=budget,
     )
-    if optimizer is None:
-        trace = levenberg_marquardt(problem, u0, **common)
-    else:
-        trace = optax_minimise(problem, u0, optimizer, **common)
-    notes += budget.notes
-    if budget.raised_to is not None:
-        problem = with_max_steps(problem, budget.raised_to)
+
+    def fit(problem: FitProblem, u0, refit=False) -> tuple[FitProblem, Trace]:
+        # a refit starts next to an optimum: its loss need not decrease
+        kwargs = dict(common, expect_decrease=not refit)
+        if optimizer is None:
+            trace = levenberg_marquardt(problem, u0, **kwargs)
+        else:
+            trace = optax_minimise(problem, u0, optimizer, **kwargs)
+        if budget.raised_to is not None:
+            problem = with_max_steps(problem, budget.raised_to)
+        if trace.loss_history and trace.jacobian is None:
+            r, J = _residuals_and_jacobian(jnp.asarray(trace.u), problem)
+            trace.residual, trace.jacobian = np.asarray(r), np.asarray(J)
+            trace.n_simulations += len(experiments)
+        return problem, trace
+
+    problem, trace = fit(problem, u0)
     if not trace.loss_history:
         raise ValueError(
             f"the simulation with sensitivities fails at the start, although the "
             f"plain one succeeds (method {method_name}); start from other values "
             f"or pass another solver"
         )
-    if trace.jacobian is None:
-        r, J = _residuals_and_jacobian(jnp.asarray(trace.u), problem)
-        trace.residual, trace.jacobian = np.asarray(r), np.asarray(J)
-        trace.n_simulations += len(experiments)
-    u = jnp.asarray(trace.u)
-    dp_du = np.asarray(jax.jacfwd(free.physical)(u)).diagonal()
-    estimate = np.asarray(free.physical(u))
-    flat = [n for n, d in zip(free.names, dp_du) if not (np.isfinite(d) and d != 0)]
+    n_p = free.size
+    # Held parameters: at the model's values, or the optimiser's start where those
+    # are outside the transform's range.
+    u_hold = np.asarray(u0[:n_p] if u_start is None else u_start)
+    held = np.zeros(n_p, dtype=bool)
+    held_stderr = np.full(n_p, np.nan)
+    init_names = initial_state_names(
+        problem.order, model.n_bodies, model.convention, fit_initial, names_of_bodies
+    )
+    settings = (init_names, rcond, max_relative_stderr)
+    analysis = _analyse(trace, problem, held, held_stderr, *settings)
+    # a failed fit never left its start: nothing drifted, nothing to hold
+    rounds = n_p if hold_unidentifiable and trace.status != "failed" else 0
+    for _ in range(rounds):
+        unc = analysis[0]
+        newly = ~unc.identifiable & ~held
+        if unc.reason or not np.any(newly):
+            break
+        u_held_start = np.array(trace.u, dtype=np.float64)
+        now_held = held | newly
+        u_held_start[:n_p] = np.where(now_held, u_hold, u_held_start[:n_p])
+        refit_problem, refit = fit(
+            with_held(problem, now_held, u_hold), jnp.asarray(u_held_start), True
+        )
+        if not refit.loss_history:
+            notes.append(
+                f"holding {', '.join(_names(free.names, newly))} at their start "
+                f"failed to simulate; they keep the fitted values"
+            )
+            break
+        held_stderr[newly] = unc.stderr[newly]
+        held = now_held
+        notes.append(
+            f"held {', '.join(_names(free.names, newly))} at their start values "
+            f"(not identifiable from these experiments) and fitted the others "
+            f"again: loss {trace.loss_history[-1]:.6g} -> "
+            f"{refit.loss_history[-1]:.6g}"
+        )
+        problem, trace = refit_problem, _merge(trace, refit)
+        analysis = _analyse(trace, problem, held, held_stderr, *settings)
+    notes += budget.notes
+    unc, estimate, initial_stderr = analysis
+    estimate[held] = (start if u_start is not None else initial)[held]
+    dp_du = _dp_du(free, trace.u)
+    flat = [n for n, d, h in zip(free.names, dp_du, held) if not (_live(d) or h)]
     if flat:
         notes.append(
             f"dp/du is 0 or not finite at the estimate of {', '.join(flat)} (the "
             f"parameter reached the end of its range, e.g. 0 for a log-parameter): "
             f"no standard errors in physical units"
         )
-    with np.errstate(divide="ignore", invalid="ignore"):
-        jacobian_p = trace.jacobian / dp_du[None, :]
-    unc = gauss_newton_uncertainty(
-        trace.residual,
-        jacobian_p,
-        estimate,
-        noise_known=experiments[0].sigma is not None,
-        rcond=rcond,
-        max_relative_stderr=max_relative_stderr,
-        names=free.names,
+    fitted = free_parameters(model, where, "identity").apply(
+        model, jnp.asarray(estimate)
     )
-    fitted = free.apply(model, u)
+    by_experiment: list = [None] * len(experiments)
+    k = 0
+    for y0s, ydot0s in initial_states(jnp.asarray(trace.u), problem):
+        for y0, ydot0 in zip(np.asarray(y0s), np.asarray(ydot0s)):
+            by_experiment[problem.order[k]] = (y0, ydot0)
+            k += 1
     return IdentificationResult(
         model=fitted,
         stderr=free.unflatten(unc.stderr),
@@ -271,7 +354,102 @@ def identify(
         method=method_name,
         wall_time=time.perf_counter() - start_time,
         notes=tuple(notes),
+        held=held,
+        initial_states=tuple(by_experiment),
+        initial_state_names=init_names,
+        initial_state_estimate=np.asarray(trace.u[n_p:]) + _initial_values(problem),
+        initial_state_stderr=initial_stderr,
     )
+
+
+def _names(names, mask) -> list[str]:
+    return [n for n, m in zip(names, mask) if m]
+
+
+def _live(d) -> bool:
+    return bool(np.isfinite(d) and d != 0)
+
+
+def _dp_du(free, u) -> np.ndarray:
+    """$dp/du$ of each free parameter at the parameter part of `u`."""
+    u = jnp.asarray(u)[: free.size]
+    return np.asarray(jax.jacfwd(free.physical)(u)).diagonal()
+
+
+def _initial_values(problem: FitProblem) -> np.ndarray:
+    """The experiments' own initial-state entries that the fit estimates (the
+    start of the estimates), in the order of $u$."""
+    positions, rates = problem.fit_initial
+    out = []
+    for data in problem.batches:
+        y0 = np.asarray(data.experiments.y_init)
+        ydot0 = np.asarray(data.experiments.ydot_init)
+        for fitted, values in ((positions, y0), (rates, ydot0)):
+            if fitted:
+                out.append(values.reshape(-1))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _analyse(
+    trace: Trace,
+    problem: FitProblem,
+    held,
+    held_stderr,
+    initial_names,
+    rcond,
+    max_relative_stderr,
+) -> tuple[Uncertainty, np.ndarray, np.ndarray]:
+    """The uncertainty of the parameters at the end of `trace` (of those not held,
+    marginal over the estimated initial states, spread over all with
+    `with_held_stderr`), the physical estimates, and the standard errors of the
+    estimated initial-state entries (marginal over the parameters not held)."""
+    free = problem.free
+    n_p = free.size
+    u = np.asarray(trace.u)
+    dp_du = _dp_du(free, u)
+    estimate = np.array(free.physical(jnp.asarray(u[:n_p])))
+    J = np.asarray(trace.jacobian)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        jacobian_p = J[:, :n_p] / dp_du[None, :]
+    jacobian_x = J[:, n_p:]
+    noise_known = problem.batches[0].experiments.sigma is not None
+    keep = ~held
+    unc = gauss_newton_uncertainty(
+        trace.residual,
+        jacobian_p[:, keep],
+        estimate[keep],
+        noise_known=noise_known,
+        rcond=rcond,
+        max_relative_stderr=max_relative_stderr,
+        names=_names(free.names, keep),
+        nuisance=jacobian_x,
+    )
+    initial_stderr = np.zeros(0)
+    if problem.n_initial:
+        values = u[n_p:] + _initial_values(problem)
+        initial_stderr = gauss_newton_uncertainty(
+            trace.residual,
+            jacobian_x,
+            values,
+            noise_known=noise_known,
+            rcond=rcond,
+            max_relative_stderr=np.inf,
+            names=initial_names,
+            nuisance=jacobian_p[:, keep],
+        ).stderr
+    return with_held_stderr(unc, held, held_stderr), estimate, initial_stderr
+
+
+def _merge(first: Trace, then: Trace) -> Trace:
+    """One trace of a fit and the refit that followed it (counts added, the loss
+    history continued, the end of the refit)."""
+    then.loss_history = first.loss_history + then.loss_history
+    then.grad_norms = first.grad_norms + then.grad_norms
+    for name in ("n_iterations", "n_simulations", "n_rejected", "n_failed_trials"):
+        setattr(then, name, getattr(first, name) + getattr(then, name))
+    then.n_trials += first.n_trials
+    then.failures = first.failures + then.failures
+    return then
 
 
 _residuals_and_jacobian = eqx.filter_jit(residuals_and_jacobian)

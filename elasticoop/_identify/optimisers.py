@@ -221,10 +221,11 @@ def _record_failure(trace: Trace, runs: Runs, problem: FitProblem) -> None:
     trace.failures.update(why or {"gave a non-finite loss"})
 
 
-def _conclude(trace: Trace) -> Trace:
+def _conclude(trace: Trace, expect_decrease: bool = True) -> Trace:
     """Make `status` and `reason` say what the trials met and whether the loss
     decreased: a fit whose every trial failed has `status` `"failed"`, and one whose
-    loss never decreased is not `"converged"` (`"stalled"`)."""
+    loss never decreased is not `"converged"` (`"stalled"`) unless
+    `expect_decrease` is false (a fit that starts at an optimum)."""
     reasons = [trace.reason] if trace.reason else []
     failures = ", ".join(f"{n} {why}" for why, n in trace.failures.most_common())
     decreased = (
@@ -243,7 +244,7 @@ def _conclude(trace: Trace) -> Trace:
                 f"{trace.n_failed_trials} of {trace.n_trials} trial steps failed to "
                 f"simulate ({failures})"
             )
-        if not decreased and trace.loss_history:
+        if not decreased and trace.loss_history and expect_decrease:
             if trace.status == "converged":
                 trace.status = "stalled"
             reasons.append("no step lowered the loss from the start")
@@ -261,12 +262,15 @@ def levenberg_marquardt(
     progress,
     n_experiments,
     budget: StepBudget,
+    expect_decrease: bool = True,
 ) -> Trace:
     """Minimise $\\tfrac12|r(u)|^2$ by Levenberg-Marquardt (optimistix).
 
     Every solver step simulates all experiments once (with sensitivities) at a
     trial point; a trial that does not lower the loss is rejected. After every
-    accepted step the simulations' step budget follows the new point (`budget`)."""
+    accepted step the simulations' step budget follows the new point (`budget`).
+    `expect_decrease=False`: a start at an optimum, whose loss need not fall, is
+    no stall (see `_conclude`)."""
     start = time.perf_counter()
     # The convergence test is ours (`_small_step`), not optimistix's Cauchy test.
     search, descent = _lm_parts()
@@ -352,7 +356,7 @@ def levenberg_marquardt(
     trace.jacobian = Jv / scale / u_scale[None, :]
     trace.u = np.asarray(u)
     trace.wall_time = time.perf_counter() - start
-    return _conclude(trace)
+    return _conclude(trace, expect_decrease)
 
 
 # optax's updates mix integer step counts with floats (e.g. Adam's bias correction
@@ -410,6 +414,7 @@ def optax_minimise(
     progress,
     n_experiments,
     budget: StepBudget,
+    expect_decrease: bool = True,
 ) -> Trace:
     """Minimise $\\tfrac12|r(u)|^2$ with an optax optimiser and reverse-mode
     gradients, until a step is small (`_small_step`) without raising the loss.
@@ -502,4 +507,4 @@ def optax_minimise(
         trace.reason = f"reached max_steps = {max_steps} iterations"
     trace.u = np.asarray(u)
     trace.wall_time = time.perf_counter() - start
-    return _conclude(trace)
+    return _conclude(trace, expect_decrease)

@@ -7,6 +7,12 @@ $$r_{eki c}(u) = \\frac{Y^{\\rm sim}_{ic}(t_k; p(u)) - Y^{\\rm data}_{ekic}}
 The loss is $\\tfrac12 \\sum r^2$. Experiments of equal shapes are simulated by one
 `vmap`-ed call of `simulate`.
 
+The unknowns $u$ are the reparameterised free parameters, then (with
+`fit_initial`) the corrections $\\Delta_e$ of the experiments' initial states
+(see `initial_state`), experiment by experiment in batch order. Parameters held
+fixed (`held`) take the values `u_held` whatever $u$ says: their sensitivities are
+zero and the optimiser leaves them alone.
+
 A simulation that stops early (gimbal lock, a collapsed link, solver failure) or
 produces non-finite values gives residuals $+\\infty$ for its experiment: the loss
 of that trial point is infinite, so a line search or trust region rejects it and
@@ -67,15 +73,64 @@ class FitProblem(eqx.Module):
     # The Jacobian is computed only where the loss is at most this (+inf: always);
     # see `residuals_and_jacobian`.
     jacobian_loss_limit: jax.Array
+    # Which parts of the initial states are estimated: (positions, rates).
+    fit_initial: tuple[bool, bool] = eqx.field(static=True)
+    # Free parameters held at `u_held` (reparameterised values), not fitted.
+    held: jax.Array
+    u_held: jax.Array
+
+    @property
+    def n_parameters(self) -> int:
+        """The number of free model parameters (the first entries of $u$)."""
+        return self.free.size
+
+    @property
+    def n_initial(self) -> int:
+        """The number of estimated initial-state entries (the rest of $u$)."""
+        parts = sum(self.fit_initial)
+        # b.y is (batch, times, bodies, 6): one (bodies, 6) state per experiment
+        return sum(
+            parts * b.y.shape[0] * b.y.shape[2] * b.y.shape[3] for b in self.batches
+        )
+
+    @property
+    def size(self) -> int:
+        """The length of $u$."""
+        return self.n_parameters + self.n_initial
 
 
-def make_problem(model, free, experiments, options) -> FitProblem:
+def make_problem(
+    model, free, experiments, options, fit_initial=(False, False)
+) -> FitProblem:
     groups = batch_experiments(experiments)
     order = tuple(k for indices, _ in groups for k in indices)
     batches = tuple(_prepare(stacked) for _, stacked in groups)
-    one, zeros = jnp.ones((), jnp.float64), jnp.zeros(free.size, jnp.float64)
-    return FitProblem(
-        model, free, batches, order, options, one, zeros, zeros + 1.0, one * jnp.inf
+    one = jnp.ones((), jnp.float64)
+    problem = FitProblem(
+        model,
+        free,
+        batches,
+        order,
+        options,
+        one,
+        jnp.zeros(0),
+        jnp.zeros(0),
+        one * jnp.inf,
+        (bool(fit_initial[0]), bool(fit_initial[1])),
+        jnp.zeros(free.size, bool),
+        jnp.zeros(free.size, jnp.float64),
+    )
+    zeros = jnp.zeros(problem.size, jnp.float64)
+    return eqx.tree_at(lambda p: (p.u_offset, p.u_scale), problem, (zeros, zeros + 1.0))
+
+
+def with_held(problem: FitProblem, held, u_held) -> FitProblem:
+    """The same problem with the free parameters where `held` is true fixed at the
+    reparameterised values `u_held` (traced values: no recompilation)."""
+    return eqx.tree_at(
+        lambda p: (p.held, p.u_held),
+        problem,
+        (jnp.asarray(held, bool), jnp.asarray(u_held, jnp.float64)),
     )
 
 
@@ -106,12 +161,14 @@ def with_jacobian_loss_limit(problem: FitProblem, limit) -> FitProblem:
     )
 
 
-def _simulate_batch(model, data: _Data, options: SimulationOptions, adjoint):
-    def one(e: Experiment):
+def _simulate_batch(
+    model, data: _Data, y_init, ydot_init, options: SimulationOptions, adjoint
+):
+    def one(e: Experiment, y0, ydot0):
         return simulate(
             model,
-            e.y_init,
-            e.ydot_init,
+            y0,
+            ydot0,
             e.ts,
             forces=e.forces,
             adjoint=adjoint,
@@ -119,7 +176,37 @@ def _simulate_batch(model, data: _Data, options: SimulationOptions, adjoint):
             **options.kwargs(),
         )
 
-    return jax.vmap(one)(data.experiments)
+    return eqx.filter_vmap(one)(data.experiments, y_init, ydot_init)
+
+
+def initial_states(u, problem: FitProblem) -> list[tuple[jax.Array, jax.Array]]:
+    """The initial states $(Y(t_0), \\dot Y(t_0))$ each batch's simulations start
+    from at $u$, each `(batch, bodies, 6)`: the experiments' `y_init`, `ydot_init`
+    plus the estimated corrections $\\Delta_e$ held in $u$ after the parameters."""
+    positions, rates = problem.fit_initial
+    offset = problem.n_parameters
+    out = []
+    for data in problem.batches:
+        y0, ydot0 = data.experiments.y_init, data.experiments.ydot_init
+        for fitted, name in ((positions, "y"), (rates, "ydot")):
+            if not fitted:
+                continue
+            size = int(np.prod(y0.shape))
+            delta = u[offset : offset + size].reshape(y0.shape)
+            offset += size
+            if name == "y":
+                y0 = y0 + delta
+            else:
+                ydot0 = ydot0 + delta
+        out.append((y0, ydot0))
+    return out
+
+
+def fitted_model(u, problem: FitProblem):
+    """The model at $u$: the free parameters $p = g(u)$, the held ones at their
+    held values."""
+    u_model = jnp.where(problem.held, problem.u_held, u[: problem.n_parameters])
+    return problem.free.apply(problem.model, u_model)
 
 
 class Runs(eqx.Module):
@@ -138,10 +225,10 @@ def residuals_by_experiment(
     """Residuals per batch, each `(batch, times, bodies, 6)` (or twice that length
     along the last axis with measured $\\dot Y$), and how each simulation went
     (`Runs`)."""
-    model = problem.free.apply(problem.model, u)
+    model = fitted_model(u, problem)
     out, ok_all, status, steps = [], [], [], []
-    for data in problem.batches:
-        traj = _simulate_batch(model, data, problem.options, adjoint)
+    for data, (y0, ydot0) in zip(problem.batches, initial_states(u, problem)):
+        traj = _simulate_batch(model, data, y0, ydot0, problem.options, adjoint)
         r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
         if data.ydot is not None and data.ydot_weight is not None:  # set together
             rd = jnp.where(

@@ -17,6 +17,7 @@ class ParameterRow:
     initial: float
     start: float
     identifiable: bool
+    held: bool = False
 
     @property
     def relative_stderr(self) -> float:
@@ -48,6 +49,18 @@ class IdentificationResult:
       forward-mode sensitivities or followed by a reverse-mode pass counts once),
       rejected trial steps, and trial steps whose simulation failed.
     - `method`, `wall_time` [s] (fit only, including compilation), `notes`.
+    - `held`: per parameter, whether it was held at its start because the data
+      do not determine it (`identify(hold_unidentifiable=True)`); its `estimate`
+      is then its value in the model passed in (`start`; `initial` where that is
+      outside the transform's range), and its standard error the one it had when
+      found not identifiable.
+    - `initial_states`: per experiment, the initial state `(y_init, ydot_init)`
+      (each `(bodies, 6)`) the fitted simulations start from: estimated where
+      `identify(fit_initial=...)` says so, the experiment's own otherwise.
+    - `initial_state_names`, `initial_state_estimate`, `initial_state_stderr`:
+      the estimated initial-state entries (empty when none were estimated),
+      e.g. `experiment[0].ydot_init.contact1.z`, their values and standard errors
+      (marginal over the parameters not held).
     """
 
     model: object
@@ -68,6 +81,22 @@ class IdentificationResult:
     method: str
     wall_time: float
     notes: tuple = ()
+    held: np.ndarray | None = None
+    initial_states: tuple = ()
+    initial_state_names: tuple = ()
+    initial_state_estimate: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(0)
+    )
+    initial_state_stderr: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(0)
+    )
+
+    @property
+    def held_mask(self) -> np.ndarray:
+        """`held` as a boolean array (all false when not given)."""
+        if self.held is None:
+            return np.zeros(len(self.names), dtype=bool)
+        return np.asarray(self.held, dtype=bool)
 
     @property
     def identifiable(self) -> np.ndarray:
@@ -88,21 +117,25 @@ class IdentificationResult:
                 initial=float(i),
                 start=float(s0),
                 identifiable=bool(ok),
+                held=bool(h),
             )
-            for n, p, s, i, s0, ok in zip(
+            for n, p, s, i, s0, ok, h in zip(
                 self.names,
                 self.estimate,
                 self.uncertainty.stderr,
                 self.initial,
                 self.start,
                 self.identifiable,
+                self.held_mask,
             )
         ]
 
     def report(self, max_correlation: float = 0.95) -> str:
         """A text report: how the fit ended, then a table of estimate, standard
         error, relative standard error and initial value per parameter, flagged
-        parameters, and strongly correlated pairs (|corr| > `max_correlation`)."""
+        parameters (and whether they were held at their start), strongly
+        correlated pairs (|corr| > `max_correlation`), and the estimated initial
+        states."""
         lines = [
             f"identify: {self.status} ({self.reason})",
             f"  method {self.method}; {self.n_iterations} iterations, "
@@ -122,6 +155,8 @@ class IdentificationResult:
         for row in self.table:
             known = not self.uncertainty.reason
             flag = "" if row.identifiable or not known else "  NOT IDENTIFIABLE"
+            if row.held:
+                flag = "  NOT IDENTIFIABLE, held at start"
             lines.append(
                 f"  {row.name:<{width}}  {row.estimate:12.6g}  {row.stderr:11.4g}  "
                 f"{row.relative_stderr:8.2%}  {row.initial:12.6g}{flag}"
@@ -140,11 +175,34 @@ class IdentificationResult:
                 for i, j in pairs
             ]
         n_bad = int(np.sum(~self.identifiable))
+        n_held = int(np.sum(self.held_mask))
         if n_bad and not self.uncertainty.reason:
             lines.append(
                 f"  {n_bad} parameter(s) not identifiable from these experiments "
                 f"(null or poorly determined directions of the Fisher information)"
             )
+        if n_held:
+            lines.append(
+                f"  {n_held} of them held at their start values (not fitted; the "
+                f"others are fitted with these values taken as known)"
+            )
+        if len(self.initial_state_names):
+            width = max(len(n) for n in self.initial_state_names)
+            lines.append(
+                f"  initial state estimated with the parameters "
+                f"({len(self.initial_state_names)} entries):"
+            )
+            lines.append(
+                f"    {'entry':<{width}}  {'estimate':>12}  {'std. error':>11}"
+            )
+            lines += [
+                f"    {n:<{width}}  {v:12.6g}  {e:11.4g}"
+                for n, v, e in zip(
+                    self.initial_state_names,
+                    self.initial_state_estimate,
+                    self.initial_state_stderr,
+                )
+            ]
         return "\n".join(lines)
 
     def __str__(self) -> str:

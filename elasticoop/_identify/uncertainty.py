@@ -16,6 +16,14 @@ when more than `NULL_SHARE` of it lies in the null directions (its standard erro
 is then infinite), or when its own relative standard error exceeds
 `max_relative_stderr`.
 
+When other unknowns were estimated with $p$ (nuisance parameters $x$, e.g. the
+experiments' initial states, with Jacobian $J_x$), the uncertainty of $p$ is the
+marginal one: $J_p$ is replaced by $(I - P_x) J_p$, $P_x$ the orthogonal projector
+onto the columns of $J_x$. Then $J_p^T (I - P_x) J_p$ is the Schur complement of
+the $x$ block in the joint information, whose inverse is the $p$ block of the joint
+covariance; a parameter whose effect the nuisance parameters can mimic is not
+identifiable. The residual degrees of freedom are $N - n_p - n_x$.
+
 Where this cannot be computed (non-finite residuals, Jacobian or estimates, or a
 failed decomposition), every quantity is NaN and `Uncertainty.reason` says why.
 """
@@ -37,7 +45,8 @@ class Uncertainty:
       identifiable).
     - `covariance`, `correlation`: `(n_p, n_p)` over the identifiable
       subspace (NaN rows/columns for parameters in a null direction).
-    - `fisher`: the Fisher information $J_p^T J_p / s^2$ (physical units).
+    - `fisher`: the Fisher information $J_p^T J_p / s^2$ (physical units; with
+      nuisance parameters, the marginal one $J_p^T (I - P_x) J_p / s^2$).
     - `singular_values`, `directions`: $S_i / s$ and $v_i$ (columns) of the
       relative Jacobian; `relative_stderr_directions` $= s/S_i$.
     - `identifiable`: per-parameter flag; `noise_scale`: $s$.
@@ -69,6 +78,7 @@ def gauss_newton_uncertainty(
     rcond: float = 1e-8,
     max_relative_stderr: float = 0.5,
     names=None,
+    nuisance=None,
 ) -> Uncertainty:
     """Uncertainty of the estimates $p$ from whitened residuals and their Jacobian.
 
@@ -82,6 +92,9 @@ def gauss_newton_uncertainty(
     - `max_relative_stderr`: parameters with a larger relative standard error are
       flagged as not identifiable from these data.
     - `names`: the parameters' names, for messages (default `p[k]`).
+    - `nuisance`: $J_x = \\partial r/\\partial x$, shape `(N, n_x)`, of other unknowns
+      estimated together with $p$; the uncertainty of $p$ is then marginal over
+      them (see the module docstring). `None`: there are none.
 
     Non-finite inputs, or a singular value decomposition that fails, give an
     `Uncertainty` of NaN whose `reason` says why, with a `RuntimeWarning`.
@@ -91,14 +104,20 @@ def gauss_newton_uncertainty(
     p = np.asarray(p, dtype=np.float64)
     n_res, n_p = J.shape
     names = [f"p[{k}]" for k in range(n_p)] if names is None else list(names)
+    Jx = np.zeros((n_res, 0)) if nuisance is None else np.asarray(nuisance, float)
     reason = _non_finite(residual, J, p, names)
+    if not reason and not np.all(np.isfinite(Jx)):
+        reason = "the Jacobian has non-finite entries for the nuisance parameters"
     if reason:
         return _unavailable(n_p, reason)
-    used = np.count_nonzero(np.any(J != 0, axis=1) | (residual != 0))
+    used = np.count_nonzero(
+        np.any(J != 0, axis=1) | np.any(Jx != 0, axis=1) | (residual != 0)
+    )
+    J = project_out(J, Jx, rcond)
     if noise_known:
         s = 1.0
     else:
-        dof = max(used - n_p, 1)
+        dof = max(used - n_p - Jx.shape[1], 1)
         s = _norm(residual) / np.sqrt(dof)
         s = max(s, np.finfo(np.float64).tiny)
     scale = np.where(p != 0, np.abs(p), 1.0)
@@ -146,6 +165,19 @@ def gauss_newton_uncertainty(
     )
 
 
+def project_out(J, nuisance, rcond: float = 1e-8):
+    """$(I - P_x) J$: the columns of `J` less their least-squares fit by the columns
+    of `nuisance` ($P_x$ the orthogonal projector onto them; singular values below
+    `rcond` times the largest are dropped). The nuisance columns are scaled to unit
+    norm first, so that their units do not matter."""
+    if nuisance.shape[1] == 0:
+        return J
+    norms = np.sqrt(np.sum(nuisance**2, axis=0))
+    A = nuisance / np.where(norms > 0, norms, 1.0)[None, :]
+    coef, *_ = np.linalg.lstsq(A, J, rcond=rcond)
+    return J - A @ coef
+
+
 def _norm(x) -> float:
     """$|x|$ without overflow or underflow of the squares."""
     size = float(np.max(np.abs(x))) if x.size else 0.0
@@ -185,4 +217,42 @@ def _unavailable(n_p: int, reason: str) -> Uncertainty:
         identifiable=np.zeros(n_p, dtype=bool),
         noise_scale=np.nan,
         reason=reason,
+    )
+
+
+def with_held_stderr(
+    unc: Uncertainty, held: np.ndarray, held_stderr: np.ndarray
+) -> Uncertainty:
+    """The `Uncertainty` of the parameters not held (`unc`, over `~held`) spread
+    over all parameters: a held parameter (fixed at its start, not fitted) is not
+    identifiable, keeps the standard error `held_stderr` it had when it was found
+    not identifiable (the reason it was held), and has no covariance, correlation
+    or Fisher information (NaN); `directions` get zero rows for it, while
+    `singular_values` stay those of the parameters not held."""
+    held = np.asarray(held, dtype=bool)
+    free = ~held
+    n_p = held.size
+
+    def vector(values, fill):
+        out = np.full(n_p, fill, dtype=np.asarray(values).dtype)
+        out[free] = values
+        return out
+
+    def matrix(values):
+        out = np.full((n_p, n_p), np.nan)
+        out[np.ix_(free, free)] = values
+        return out
+
+    stderr = vector(unc.stderr, np.nan)
+    stderr[held] = held_stderr[held]
+    directions = np.zeros((n_p, unc.directions.shape[1]))
+    directions[free] = unc.directions
+    return dataclasses.replace(
+        unc,
+        stderr=stderr,
+        covariance=matrix(unc.covariance),
+        correlation=matrix(unc.correlation),
+        fisher=matrix(unc.fisher),
+        directions=directions,
+        identifiable=vector(unc.identifiable, False),
     )
