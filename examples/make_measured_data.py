@@ -1,7 +1,7 @@
 """Make the measured-data example `elasticoop/scenarios/plate_lift_measured.csv`.
 
 The "measurements" are the example scenario `plate_lift.toml` simulated with grasps
-25 % stiffer and 20 % less damped than the scenario file says (the truth a fit
+25 % stiffer than the scenario file says (the truth a fit
 should find), sampled at the scenario's output times, with Gaussian noise of known
 level (seeded, so the file is reproducible) and a few missing samples. Run from the
 repository root:
@@ -20,7 +20,7 @@ import elasticoop as eo
 SCENARIO = pathlib.Path(__file__).parents[1] / "elasticoop/scenarios/plate_lift.toml"
 OUTPUT = SCENARIO.with_name("plate_lift_measured.csv")
 STIFFNESS_FACTOR = 1.25  # truth = factor x the scenario file's values
-DAMPING_FACTOR = 0.8
+DAMPING_FACTOR = 1.0
 SIGMA_POSITION = 2e-4  # [m]
 SIGMA_ANGLE = 0.02  # [deg]
 MISSING_FRACTION = 0.01  # share of the object's samples left empty

@@ -14,6 +14,7 @@ import pytest
 
 from elasticoop import plot_fit, plot_loss_history
 from elasticoop._cli import main
+from elasticoop._cli.identify import renamed
 from elasticoop._config import load_scenario
 from elasticoop._examples import example_files
 from elasticoop._io.fitted_scenario import fitted_scenario_text
@@ -129,11 +130,10 @@ def test_shipped_measured_data_is_what_the_script_makes():
 def test_identify_the_shipped_example_moves_towards_the_truth(tmp_path):
     maker = make_measured_data()
     out = tmp_path / "fit"
-    # every translational stiffness and damping: an axis left at a wrong value
-    # biases the others (the left and right links lie along x and y)
+    # the translational stiffnesses (the data's damping is the scenario's)
     code = main(
         ["identify", str(PLATE), str(MEASURED), "-o", str(out), "-q"]
-        + ["--fit", "stiffness", "damping", "--axes", "x", "y", "z"]
+        + ["--fit", "stiffness", "--axes", "x", "y", "z"]
         + ["--init", "model", "--max-iterations", "8"]
     )
     assert code == 0
@@ -150,7 +150,7 @@ def test_identify_the_shipped_example_moves_towards_the_truth(tmp_path):
     truth = maker.truth(start)
     assert report["loss_history"][-1] < 0.5 * report["loss_history"][0]
     rows = {p["name"]: p for p in report["parameters"]}
-    assert len(rows) == 18
+    assert len(rows) == 9
     determined = 0
     for k, connection in enumerate(start.connection_names):
         for c, axis in enumerate("xyz"):
@@ -159,14 +159,31 @@ def test_identify_the_shipped_example_moves_towards_the_truth(tmp_path):
             s1 = float(fitted.model.stiffness[k, c])
             assert row["estimate"] == pytest.approx(s1, rel=1e-12)
             true = float(truth.stiffness[k, c])
-            if row["identifiable"]:  # consistent with the truth
-                assert abs(s1 - true) < 3 * row["stderr"], (connection, axis)
+            if not row["identifiable"]:  # held at the scenario's value
+                assert s1 == s0, (connection, axis)
+            # The others are fitted with the held ones taken as known; those are
+            # 25 % off here, which biases the weakly determined estimates by a few
+            # standard errors. The well determined ones must approach the truth.
             if row["identifiable"] and row["relative_stderr"] < 0.1:
                 determined += 1  # well determined: closer to the truth than s0
                 assert abs(s1 - true) < abs(s0 - true), (connection, axis)
     assert determined >= 3
-    for name in ("stiffness", "damping"):  # the angular axes keep their values
+    np.testing.assert_array_equal(fitted.model.damping, start.model.damping)
+    for name in ("stiffness",):  # the angular axes keep their values
         np.testing.assert_array_equal(
             np.asarray(getattr(fitted.model, name))[:, 3:],
             np.asarray(getattr(start.model, name))[:, 3:],
         )
+
+
+def test_notes_name_parameters_as_the_report_does():
+    """The library's notes name parameters by body index; the command line's
+    report renames them with the scenario's names, whole names only."""
+    old = ["stiffness[0-1].x", "stiffness[0-1].xx", "mass[0]"]
+    new = ["stiffness[plate-front].x", "stiffness[plate-front].xx", "mass[plate]"]
+    note = "held stiffness[0-1].xx, stiffness[0-1].x and mass[0] at their start"
+    assert renamed(note, old, new) == (
+        "held stiffness[plate-front].xx, stiffness[plate-front].x and mass[plate] "
+        "at their start"
+    )
+    assert renamed("no names here", [], []) == "no names here"

@@ -5,7 +5,9 @@ file, a report (text and JSON) and plots."""
 import dataclasses
 import datetime
 import pathlib
+import re
 import sys
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -206,7 +208,13 @@ def execute(args) -> int:
             print(f"elasticoop {NAME}: {err} (data files: {files})", file=sys.stderr)
             return EXIT_SIMULATION
         raise UserError(str(err)) from err
-    result = dataclasses.replace(result, names=selection.names)
+    result = dataclasses.replace(
+        result,
+        names=selection.names,
+        notes=tuple(
+            renamed(note, result.names, selection.names) for note in result.notes
+        ),
+    )
     paths = write_results(scenario, experiments, result, selection, folder, args)
     say(args, result.report())
     say(args, "wrote " + ", ".join(str(p) for p in paths))
@@ -303,3 +311,13 @@ def write_plots(scenario, experiments, result, outdir: pathlib.Path, args) -> li
         fig.savefig(outdir / f"fit_{k}.png", dpi=100)
         names.append(f"fit_{k}.png")
     return names
+
+
+def renamed(text: str, old: Sequence[str], new: Sequence[str]) -> str:
+    """`text` with each parameter name of `old` replaced by the one at the same
+    place in `new` (the library's index names by the scenario's names)."""
+    mapping = dict(zip(old, new))
+    if not mapping:
+        return text
+    pattern = "|".join(re.escape(name) for name in sorted(mapping, key=len)[::-1])
+    return re.sub(pattern, lambda match: mapping[match.group(0)], text)

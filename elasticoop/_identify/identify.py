@@ -326,7 +326,7 @@ def identify(
             f"parameter reached the end of its range, e.g. 0 for a log-parameter): "
             f"no standard errors in physical units"
         )
-    fitted = free_parameters(model, where, "identity").apply(
+    fitted = free_parameters(model, where, "identity", mask).apply(
         model, jnp.asarray(estimate)
     )
     by_experiment: list = [None] * len(experiments)
