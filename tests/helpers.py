@@ -192,3 +192,28 @@ def two_body_run():
     traj = eo.simulate(model, y0, ydot0, SMALL_TS, forces=lift)
     immobile = eqx.tree_at(lambda t: t.model, traj, eo.linearize_mobile(model, y0))
     return traj, immobile
+
+
+def readme_command(command, paths, **options):
+    """The README's first shell line `elasticoop COMMAND ...` as an argument list
+    for `elasticoop._cli.main`, so that the tests run what the README shows: each
+    argument is mapped through `paths` (e.g. README's `my_study/x.toml` to a file
+    of the test), and each `options` entry replaces the value of the option
+    `--name` (`max_iterations` for `--max-iterations`) or appends it."""
+    import pathlib
+    import re
+    import shlex
+
+    readme = pathlib.Path(__file__).resolve().parents[1] / "README.md"
+    line = re.search(
+        rf"^elasticoop {command} (.*?)(  #.*)?$", readme.read_text(), flags=re.M
+    )
+    assert line is not None, f"the README shows no 'elasticoop {command}' line"
+    argv = [command] + [paths.get(a, a) for a in shlex.split(line.group(1))]
+    for name, value in options.items():
+        flag = "--" + name.replace("_", "-")
+        if flag in argv:
+            argv[argv.index(flag) + 1] = str(value)
+        else:
+            argv += [flag, str(value)]
+    return argv

@@ -11,6 +11,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import readme_command
 
 from elasticoop import plot_fit, plot_loss_history
 from elasticoop._cli import main
@@ -130,12 +131,16 @@ def test_shipped_measured_data_is_what_the_script_makes():
 def test_identify_the_shipped_example_moves_towards_the_truth(tmp_path):
     maker = make_measured_data()
     out = tmp_path / "fit"
-    # the translational stiffnesses (the data's damping is the scenario's)
-    code = main(
-        ["identify", str(PLATE), str(MEASURED), "-o", str(out), "-q"]
-        + ["--fit", "stiffness", "--axes", "x", "y", "z"]
-        + ["--init", "model", "--max-iterations", "8"]
-    )
+    # the README's command (the translational stiffnesses; the data's damping is
+    # the scenario's), at 8 iterations
+    paths = {
+        "my_study/plate_lift.toml": str(PLATE),
+        "my_study/plate_lift_measured.csv": str(MEASURED),
+        "results/plate_fit": str(out),
+    }
+    argv = readme_command("identify", paths, max_iterations=8)
+    assert argv[1:3] == [str(PLATE), str(MEASURED)] and str(out) in argv
+    code = main([*argv, "-q"])
     assert code == 0
     assert sorted(p.name for p in out.iterdir()) == [
         "fit_1.png",

@@ -45,5 +45,5 @@ def test_python_dash_m_runs_the_demo():
         timeout=300,
     )
     assert out.returncode == 0, out.stderr
-    assert "peak elastic force per grasp" in out.stdout
+    assert "peak grasp load (elastic + damping)" in out.stdout
     assert "residual" in out.stdout

@@ -8,6 +8,7 @@ import re
 
 import numpy as np
 import pytest
+from helpers import readme_command
 
 from elasticoop import StudyFileError, load_study, montecarlo as mc
 from elasticoop._cli import main
@@ -206,7 +207,10 @@ PROBABILITY = re.compile(
 def test_montecarlo_runs_resumes_refuses_and_summarises(tmp_path, capsys):
     study = _small_study(tmp_path)
     store = tmp_path / "store"
-    run = ["montecarlo", str(study), "-o", str(store), "--samples", "4"]
+    # the README's command, on a shorter span and with 4 samples
+    paths = {"my_study/beam_lift.study.toml": str(study), "results/study": str(store)}
+    run = readme_command("montecarlo", paths, samples=4)
+    assert run == ["montecarlo", str(study), "-o", str(store), "--samples", "4"]
     assert main([*run, "-q"]) == 0, capsys.readouterr().err
     chunks = sorted(store.glob("chunk-*.npz"))
     stamps = [c.stat().st_mtime_ns for c in chunks]

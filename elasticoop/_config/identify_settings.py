@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from .._models import MobileModel
 from .._naming import coordinate_names
 from .._scenario import IdentifySpec
 
@@ -95,7 +96,7 @@ def fit_selection(scenario, spec: IdentifySpec) -> FitSelection:
     quantities = tuple(q for q in (*_PER_CONNECTION, *_PER_BODY) if q in spec.fit)
     bodies = list(scenario.names)
     connections = list(scenario.connection_names)
-    if not connections and hasattr(model, "pairs"):
+    if not connections and isinstance(model, MobileModel):
         pairs = np.asarray(model.pairs).tolist()
         connections = [f"{bodies[i]}-{bodies[j]}" for i, j in pairs]
     leaves, masks, names = [], [], []

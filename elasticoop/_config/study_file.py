@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
+from .._forces import PoseTracking
 from .._models import MobileModel
 from .._naming import coordinate_names
 from .._scenario import Scenario
@@ -385,7 +386,7 @@ class _Parameter:
                 f"cannot be varied from a study file)",
             )
             return None
-        if q.needs == "pose_tracking" and not hasattr(scenario.forces, "kp"):
+        if q.needs == "pose_tracking" and not isinstance(scenario.forces, PoseTracking):
             self.add(
                 "quantity",
                 f"{entry.quantity!r} is a setting of [forces.pose_tracking], which "
