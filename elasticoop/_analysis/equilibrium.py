@@ -117,7 +117,6 @@ def static_equilibrium(
     mask = as_mask(prescribed, n)
     F = constant_forces(forces, n)
     free = np.flatnonzero(~mask.reshape(-1))
-    need = model.n_prescribed(y_guess)
     if free.size == 0:
         raise ValueError("prescribed fixes every coordinate: nothing to solve for")
 
@@ -131,6 +130,7 @@ def static_equilibrium(
         at_guess = _missing_constraints(_restricted_stiffness(model, y_guess, free))
         missing = max(missing, at_guess)
         if missing > 0:
+            need = model.n_prescribed(y_guess)
             raise ValueError(
                 f"the static equilibrium is not unique: {int(mask.sum())} "
                 f"coordinates are prescribed, but the stiffness restricted to the "

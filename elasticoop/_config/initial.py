@@ -1,6 +1,7 @@
 """A scenario's initial state from its static equilibrium (`[initial] from =
 "equilibrium"`), and the forces that hold the contact bodies at rest."""
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
@@ -35,7 +36,15 @@ def forces_at_start(
     (zero without forces)."""
     if forces is None:
         return jnp.zeros((n_bodies, 6))
-    at_rest = forces(jnp.asarray(t0, dtype=jnp.float64), y, jnp.zeros_like(y))
+    t = jnp.asarray(t0, dtype=jnp.float64)
+    return _forces_at_rest(forces, t, jnp.asarray(y), n_bodies)
+
+
+# Compiled: evaluated op by op, these would compile each small operation on its own
+# (seconds in a fresh process).
+@eqx.filter_jit
+def _forces_at_rest(forces: AbstractForce, t: Array, y: State, n_bodies: int) -> State:
+    at_rest = forces(t, y, jnp.zeros_like(y))
     return pad_to_bodies(jnp.asarray(at_rest), n_bodies)
 
 
@@ -56,7 +65,11 @@ def holding_forces(model: AbstractElasticModel, y: State) -> Float[Array, "m 6"]
     """The generalized forces that hold each contact body at rest in `y`:
     $F_i = \\partial\\Pi/\\partial Y_i - G_i$ for $i = 1..m$, `(m, 6)` (the
     reactions of a static equilibrium with the contact bodies held)."""
-    y = jnp.asarray(y)
+    return _holding_forces(model, jnp.asarray(y))
+
+
+@eqx.filter_jit
+def _holding_forces(model: AbstractElasticModel, y: State) -> Float[Array, "m 6"]:
     return (elastic_forces(model, y) - model.gravity_forces())[1:]
 
 

@@ -330,8 +330,7 @@ class MobileModel(AbstractElasticModel):
                 "MobileModel.stiffness_matrix needs a configuration y: the "
                 "stiffness of Appendix B depends on it"
             )
-        n = 6 * self.n_bodies
-        return jax.hessian(lambda q: self.potential(q.reshape(y.shape)))(y.reshape(n))
+        return _potential_hessian(self, jnp.asarray(y))
 
     def connection_wrench(self, y: State) -> Float[Array, "connections 6"]:
         """Generalized elastic force of each connection on its first body $i$,
@@ -367,3 +366,11 @@ class MobileModel(AbstractElasticModel):
             self,
             (lengths, yi[:, 3:] - yj[:, 3:]),
         )
+
+
+@eqx.filter_jit
+def _potential_hessian(model: MobileModel, y: State) -> DofMatrix:
+    """$\\partial^2 \\Pi/\\partial Y^2$ of the flattened $Y$, compiled (evaluated
+    op by op, the Hessian would compile each of its many small operations)."""
+    n = 6 * model.n_bodies
+    return jax.hessian(lambda q: model.potential(q.reshape(y.shape)))(y.reshape(n))
