@@ -5,38 +5,17 @@ Importing elasticoop turns on JAX's 64-bit mode (`jax_enable_x64`): tolerances s
 as `rtol=1e-8` are meaningless in float32.
 """
 
+import ast
+import importlib
+import pathlib
+import typing
+
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from . import montecarlo as montecarlo  # noqa: E402
-from ._analysis import (  # noqa: E402
-    Equilibrium as Equilibrium,
-    LinearModel as LinearModel,
-    LoadDistribution as LoadDistribution,
-    Modes as Modes,
-    StateSpace as StateSpace,
-    grasp_matrix as grasp_matrix,
-    grasp_wrenches as grasp_wrenches,
-    inverse_dynamics_series as inverse_dynamics_series,
-    linearize as linearize,
-    load_distribution as load_distribution,
-    modes as modes,
-    static_equilibrium as static_equilibrium,
-    trajectory_load_distribution as trajectory_load_distribution,
-)
 from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
 from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
-from ._config import (  # noqa: E402
-    DataFileError as DataFileError,
-    ScenarioError as ScenarioError,
-    StudyFile as StudyFile,
-    StudyFileError as StudyFileError,
-    load_experiment as load_experiment,
-    load_scenario as load_scenario,
-    load_study as load_study,
-)
-from ._examples import default_scenario as default_scenario  # noqa: E402
 from ._forces import (  # noqa: E402
     AbstractForce as AbstractForce,
     ConstantForce as ConstantForce,
@@ -45,21 +24,6 @@ from ._forces import (  # noqa: E402
     SampledForce as SampledForce,
     generalized_wrench as generalized_wrench,
 )
-from ._identify import (  # noqa: E402
-    AbstractTransform as AbstractTransform,
-    Bounded as Bounded,
-    Experiment as Experiment,
-    IdentificationResult as IdentificationResult,
-    Log as Log,
-    ParameterRow as ParameterRow,
-    Softplus as Softplus,
-    equation_error as equation_error,
-    gauss_newton_uncertainty as gauss_newton_uncertainty,
-    identify as identify,
-    initial_state_from_data as initial_state_from_data,
-    savitzky_golay as savitzky_golay,
-)
-from ._io.xarray import trajectory_to_xarray as trajectory_to_xarray  # noqa: E402
 from ._lagrange import (  # noqa: E402
     accelerations as accelerations,
     constrained_accelerations as constrained_accelerations,
@@ -89,19 +53,6 @@ from ._options import (  # noqa: E402
     LINK_TOL as LINK_TOL,
     SimulationOptions as SimulationOptions,
 )
-from ._plotting import (  # noqa: E402
-    plot_coordinates as plot_coordinates,
-    plot_elastic_wrench as plot_elastic_wrench,
-    plot_energy as plot_energy,
-    plot_fit as plot_fit,
-    plot_loss_history as plot_loss_history,
-    plot_mode_shapes as plot_mode_shapes,
-    plot_snapshots as plot_snapshots,
-    plot_study_histograms as plot_study_histograms,
-    plot_study_quantiles as plot_study_quantiles,
-    plot_study_sensitivity as plot_study_sensitivity,
-    save_animation as save_animation,
-)
 from ._rotations import (  # noqa: E402
     RPY as RPY,
     ZXZ as ZXZ,
@@ -119,3 +70,102 @@ from ._simulate import (  # noqa: E402
 from ._status import Status as Status  # noqa: E402
 from ._trajectory import Trajectory as Trajectory  # noqa: E402
 from ._version import __version__ as __version__  # noqa: E402
+
+# The parts that pull in heavy dependencies (scipy, pandas, xarray, matplotlib,
+# pydantic, optax) are imported on first use, so that `import elasticoop` and a first
+# `simulate` do not pay for them. The imports below are the one list of these names:
+# type checkers and the documentation read them, and `__getattr__` resolves each
+# name to the module its statement names.
+if typing.TYPE_CHECKING:
+    from . import montecarlo as montecarlo
+    from ._analysis import (
+        Equilibrium as Equilibrium,
+        LinearModel as LinearModel,
+        LoadDistribution as LoadDistribution,
+        Modes as Modes,
+        StateSpace as StateSpace,
+        grasp_matrix as grasp_matrix,
+        grasp_wrenches as grasp_wrenches,
+        inverse_dynamics_series as inverse_dynamics_series,
+        linearize as linearize,
+        load_distribution as load_distribution,
+        modes as modes,
+        static_equilibrium as static_equilibrium,
+        trajectory_load_distribution as trajectory_load_distribution,
+    )
+    from ._config import (
+        DataFileError as DataFileError,
+        ScenarioError as ScenarioError,
+        StudyFile as StudyFile,
+        StudyFileError as StudyFileError,
+        load_experiment as load_experiment,
+        load_scenario as load_scenario,
+        load_study as load_study,
+    )
+    from ._examples import default_scenario as default_scenario
+    from ._identify import (
+        AbstractTransform as AbstractTransform,
+        Bounded as Bounded,
+        Experiment as Experiment,
+        IdentificationResult as IdentificationResult,
+        Log as Log,
+        ParameterRow as ParameterRow,
+        Softplus as Softplus,
+        equation_error as equation_error,
+        gauss_newton_uncertainty as gauss_newton_uncertainty,
+        identify as identify,
+        initial_state_from_data as initial_state_from_data,
+        savitzky_golay as savitzky_golay,
+    )
+    from ._io.xarray import trajectory_to_xarray as trajectory_to_xarray
+    from ._plotting import (
+        plot_coordinates as plot_coordinates,
+        plot_elastic_wrench as plot_elastic_wrench,
+        plot_energy as plot_energy,
+        plot_fit as plot_fit,
+        plot_loss_history as plot_loss_history,
+        plot_mode_shapes as plot_mode_shapes,
+        plot_snapshots as plot_snapshots,
+        plot_study_histograms as plot_study_histograms,
+        plot_study_quantiles as plot_study_quantiles,
+        plot_study_sensitivity as plot_study_sensitivity,
+        save_animation as save_animation,
+    )
+
+
+def _lazy_names() -> dict[str, str]:
+    """Name -> module (relative to this package) of the imports under
+    `TYPE_CHECKING` above."""
+    tree = ast.parse(pathlib.Path(__file__).read_text(encoding="utf-8"))
+    block = next(
+        node
+        for node in tree.body
+        if isinstance(node, ast.If) and ast.unparse(node.test) == "typing.TYPE_CHECKING"
+    )
+    names = {}
+    for statement in block.body:
+        assert isinstance(statement, ast.ImportFrom)
+        module = "." * statement.level + (statement.module or "")
+        for alias in statement.names:
+            if module == ".":  # `from . import montecarlo`: the submodule itself
+                names[alias.name] = "." + alias.name
+            else:
+                names[alias.asname or alias.name] = module
+    return names
+
+
+_LAZY = _lazy_names()
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'elasticoop' has no attribute {name!r}")
+    imported = importlib.import_module(module, __name__)
+    value = imported if module == "." + name else getattr(imported, name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

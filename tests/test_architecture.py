@@ -3,6 +3,7 @@ pyproject.toml), no import circles, no submodule importing the package root, and
 every third-party package the code imports declared as a dependency."""
 
 import ast
+import importlib
 import pathlib
 import shutil
 import subprocess
@@ -96,3 +97,29 @@ def test_every_imported_package_is_declared():
     # mpl_toolkits ships with matplotlib
     imported.discard("mpl_toolkits")
     assert imported <= declared, f"imported but not declared: {imported - declared}"
+
+
+def test_import_leaves_the_heavy_dependencies_until_used():
+    """`import elasticoop` (what a first `simulate` needs) does not import scipy,
+    pandas, xarray, matplotlib, pydantic or optax; each public name it defers
+    still resolves, to the same object as its defining module's."""
+    code = (
+        "import sys, elasticoop; "
+        "print(sorted(m for m in ('scipy', 'pandas', 'xarray', 'matplotlib', "
+        "'pydantic', 'optax') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip() == "[]"
+    import elasticoop
+
+    deferred = elasticoop._LAZY
+    assert {"static_equilibrium", "identify", "plot_energy", "montecarlo"} <= set(
+        deferred
+    )
+    for name, module in deferred.items():
+        value = getattr(elasticoop, name)
+        defining = importlib.import_module(module, "elasticoop")
+        assert value is (defining if module == f".{name}" else getattr(defining, name))
+        assert name in dir(elasticoop)

@@ -35,9 +35,11 @@ def nav_entries() -> list[str]:
 
 
 def public_objects(module: types.ModuleType) -> dict[str, object]:
+    """The module's public names (`dir`: the package imports some on first use)."""
+    values = {name: getattr(module, name) for name in dir(module)}
     return {
         f"{module.__name__}.{name}": value
-        for name, value in vars(module).items()
+        for name, value in values.items()
         if not name.startswith("_") and not isinstance(value, types.ModuleType)
     }
 
