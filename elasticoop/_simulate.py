@@ -320,6 +320,7 @@ class _StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
 
 
 @eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def _solve(
     model: AbstractElasticModel,
     y_init: State,

@@ -15,6 +15,7 @@ from elasticoop._identify import (
     Experiment,
     equation_error,
     identify,
+    optimisers,
     savitzky_golay,
 )
 
@@ -174,7 +175,8 @@ def test_savitzky_golay_matches_scipy():
 @pytest.mark.slow
 def test_standard_errors_are_calibrated():
     """One experiment, fresh seeded noise in each of `repeats` data sets: the
-    spread of the estimates must match the reported standard errors."""
+    spread of the estimates must match the reported standard errors. The fits
+    after the first (new data, same problem) must not retrace."""
     model, y0 = _two_body()
     noise, repeats = 1e-5, 20
     ((traj, clean),) = _experiments(model, y0, TS_SMALL, seeds=(7,))
@@ -189,6 +191,11 @@ def test_standard_errors_are_calibrated():
         assert result.converged, result.reason
         estimates.append(result.estimate)
         stderrs.append(result.uncertainty.stderr)
+        if k == 0:
+            traces = eqx.debug.get_num_traces(optimisers._lm_step)
+    # the fits after the first (new data, same problem) reused its compilation
+    assert traces >= 1
+    assert eqx.debug.get_num_traces(optimisers._lm_step) == traces
     spread = np.std(np.asarray(estimates), axis=0, ddof=1)
     reported = np.mean(np.asarray(stderrs), axis=0)
     ratio = spread / reported

@@ -145,6 +145,7 @@ def _lm_init(search, descent, v, problem) -> _LMState:
 
 
 @eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def _lm_step(search, descent, state: _LMState, problem):
     """Simulate at the trial point, let the trust region accept or reject it, and
     propose the next trial point. Returns the new state, the loss and its gradient
