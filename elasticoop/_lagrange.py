@@ -12,11 +12,16 @@ the structure of the problem is used to keep the derivatives cheap:
 - $T = \\sum_i T_i(Y_i, \\dot Y_i)$ is evaluated for all bodies at once, coordinate by
   coordinate (six arrays of shape `(bodies,)`), so under `jit`/`vmap` it is one
   elementwise computation that XLA fuses into a few loops.
-- $W$ is block diagonal over bodies, so column $k$ of every body's block $W_i$ comes
-  from one forward-mode product of the momentum $p = \\partial T/\\partial\\dot Y$ in
-  direction "rate $k$ of every body".
-- About the mass centre $T_i$ has no translation-rotation coupling, so
-  $W_i = \\operatorname{diag}(W_{lin}, W_{rot})$; each 3x3 block is solved by a
+- $W$ is block diagonal over bodies, and in the structure of $T_i$ (mass centre,
+  principal axes, $\\omega = L_\\omega\\dot{\\mathcal{A}}$) each block is
+  $W_i = \\operatorname{diag}(m_i 1_3, L_\\omega^T I_i L_\\omega)$ (`_mass_blocks`):
+  the free accelerations are $b_{lin}/m_i$ and
+  $L_\\omega^{-1} I_i^{-1} L_\\omega^{-T} b_{rot}$, with the closed-form inverse of
+  $L_\\omega$. `mass_matrix` forms $W$ by autodiff instead (column $k$ of every
+  block from one forward-mode product of the momentum
+  $p = \\partial T/\\partial\\dot Y$ along rate $k$ of every body), the independent
+  route the tests compare the blocks with.
+- With prescribed coordinates, the 3x3 blocks that hold one are solved by a
   closed-form $LDL^T$ factorisation (no pivoting: the blocks are positive definite
   away from gimbal lock).
 - The velocity terms are one Jacobian-vector product of $p$ along $\\dot Y$ minus
@@ -41,13 +46,14 @@ from ._custom_types import (
     State,
     StateLike,
 )
+from ._mass_blocks import FactoredMassBlocks
 from ._models import AbstractElasticModel
 
 _COORDINATES = range(6)
 _BLOCKS = ((0, 1, 2), (3, 4, 5))  # translations, Euler angles
 
-# The entries `W[i, k]` of all blocks $W_i$, each `(bodies,)`.
-_Blocks = dict[tuple[int, int], BodyCoordinate]
+# The entries `W[i, k]` of all blocks $W_i$, each `(bodies,)` (or a structural 0.0).
+_Blocks = dict[tuple[int, int], BodyCoordinate | float]
 
 
 def _coordinates(x: State) -> BodyCoordinates:
@@ -158,27 +164,38 @@ def damping_forces(model: AbstractElasticModel, y: StateLike, ydot: StateLike) -
 
 def _balance(
     model: AbstractElasticModel, y: State, ydot: State, applied: State
-) -> tuple[_Blocks, BodyCoordinates, State]:
+) -> tuple[FactoredMassBlocks, BodyCoordinates, State]:
     """The one assembly of $W\\ddot Y = G + F - w$: every use of the equations of
     motion (free, prescribed and inverse dynamics) starts here.
 
-    **Returns:** `(W, b, damping)`: the entries `W[i, k]` of the blocks $W_i$
-    (arrays `(bodies,)`), the right-hand side $b = G + F - w$ as six arrays
-    `(bodies,)`, and $\\partial R/\\partial\\dot Y$ `(bodies, 6)`.
+    **Returns:** `(W, b, damping)`: the blocks $W_i$ (`FactoredMassBlocks`), the
+    right-hand side $b = G + F - w$ as six arrays `(bodies,)`, and
+    $\\partial R/\\partial\\dot Y$ `(bodies, 6)`.
     """
     q, v = _coordinates(y), _coordinates(ydot)
     elastic, damping = model.restoring_forces(y, ydot)
     rhs = model.gravity_forces() + applied - elastic - damping
-    W = _mass_matrix_columns(model, q, v, _COORDINATES)
+    inertia = model.bodies.inertia
+    W = FactoredMassBlocks(
+        model.bodies.mass,
+        (inertia[:, 0], inertia[:, 1], inertia[:, 2]),
+        model.rotation.angular_velocity_rows(q[3:6]),
+    )
     c = _velocity_terms(model, q, v)
     b = tuple(rhs[:, k] - c[k] for k in _COORDINATES)
     return W, b, damping
 
 
+def _entries(W: FactoredMassBlocks) -> _Blocks:
+    """The entries `W[i, k]` within each 3x3 block (arrays or structural `0.0`)."""
+    return {(i, k): W.entry(i, k) for block in _BLOCKS for i in block for k in block}
+
+
 def accelerations(
     model: AbstractElasticModel, y: StateLike, ydot: StateLike, applied: StateLike
 ) -> tuple[State, State]:
-    """Solve $W\\ddot Y = G + F - w$ per body (3x3 blocks, closed-form $LDL^T$).
+    """Solve $W\\ddot Y = G + F - w$ per body ($\\ddot r_i = b_{lin}/m_i$,
+    $\\ddot{\\mathcal{A}}_i = L_\\omega^{-1} I_i^{-1} L_\\omega^{-T} b_{rot}$).
 
     **Arguments:** the model, $Y$, $\\dot Y$ and the applied generalized forces $F$
     (all `(bodies, 6)`).
@@ -189,10 +206,7 @@ def accelerations(
     """
     y, ydot, applied = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
     W, b, damping = _balance(model, y, ydot, applied)
-    yddot: list[BodyCoordinate] = []
-    for block in _BLOCKS:
-        yddot += _ldl_solve3(W, block, tuple(b[k] for k in block))
-    return jnp.stack(yddot, -1), damping
+    return jnp.stack(W.solve(b), -1), damping
 
 
 def constrained_accelerations(
@@ -212,9 +226,10 @@ def constrained_accelerations(
 
     and the prescribed rows give the reactions, the generalized forces the drive
     must add to realise the motion: $Q_p = [W\\ddot Y + w - G - F]_p$ ($Q_f = 0$).
-    Each 3x3 block is solved as the symmetric positive definite system
-    $\\operatorname{diag}(W_{ff}, I)$ by the same closed-form $LDL^T$ as the free
-    dynamics; with nothing prescribed it is exactly `accelerations`.
+    Each 3x3 block with a prescribed coordinate is solved as the symmetric positive
+    definite system $\\operatorname{diag}(W_{ff}, I)$ by a closed-form $LDL^T$; a
+    block with none is solved as in `accelerations`, so with nothing prescribed
+    this is exactly `accelerations`.
 
     **Arguments:** as `accelerations`, plus `mask`, a concrete bool array
     `(bodies, 6)` (true: prescribed), and `yddot_prescribed` `(bodies, 6)` (only
@@ -226,14 +241,20 @@ def constrained_accelerations(
     mask = np.asarray(mask, dtype=bool)
     y, ydot, applied = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
     yddot_prescribed = jnp.asarray(yddot_prescribed)
-    W, b, damping = _balance(model, y, ydot, applied)
+    blocks, b, damping = _balance(model, y, ydot, applied)
+    W = _entries(blocks)
     a = _coordinates(yddot_prescribed)
     # Only coordinates prescribed for some body enter the elimination (a Python-level
-    # choice on the concrete mask: nothing prescribed costs nothing).
+    # choice on the concrete mask: a block with nothing prescribed is solved as in
+    # the free dynamics).
     driven = {k: mask[:, k] for k in _COORDINATES if mask[:, k].any()}
+    free = blocks.solve(b)
     yddot: list[BodyCoordinate] = []
     p: np.ndarray | bool
     for block in _BLOCKS:
+        if not any(k in driven for k in block):
+            yddot += [free[k] for k in block]
+            continue
         S = dict(W)
         r = []
         for i in block:
@@ -265,7 +286,8 @@ def inverse_dynamics(
     """Generalized forces that realise a motion: $F = W\\ddot Y + w - G$,
     shape `(bodies, 6)`."""
     y, ydot, yddot = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(yddot)
-    W, b, _ = _balance(model, y, ydot, jnp.zeros_like(y))
+    blocks, b, _ = _balance(model, y, ydot, jnp.zeros_like(y))
+    W = _entries(blocks)
     a = _coordinates(yddot)
     return jnp.stack(
         [sum(W[i, k] * a[k] for k in _BLOCKS[i // 3]) - b[i] for i in _COORDINATES],

@@ -13,6 +13,7 @@ from helpers import (
 )
 
 import elasticoop as eo
+from elasticoop import _lagrange
 
 # Autodiff and closed forms agree to rounding; 1e-12 relative leaves ample margin.
 CLOSED_FORM_RTOL = 1e-12
@@ -79,3 +80,32 @@ def test_mass_matrix_determinant_vanishes_only_at_singularity(convention):
     W = eo.mass_matrix(model, jnp.concatenate([jnp.zeros(3), a])[None])[0]
     expected = m**3 * np.prod(inertia) * rot.regularity(a) ** 2
     np.testing.assert_allclose(np.linalg.det(W), expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("convention", CONVENTIONS)
+def test_accelerations_solve_the_autodiff_mass_matrix(convention):
+    """The free dynamics solves with the blocks in the structure of T
+    (diag(m 1, L^T I L), inverted through L): the same W as the autodiff Hessian
+    of T (`mass_matrix`), and W yddot = G + F - w with that W to rounding."""
+    rng = np.random.default_rng(5)
+    bodies, y = [], []
+    for _ in range(4):
+        m, inertia, yi, _ = _random_body_and_state(rng)
+        bodies.append(eo.RigidBody(m, inertia))
+        if convention == "rpy":  # pitch away from +-pi/2
+            yi[4] = rng.uniform(-1.2, 1.2)
+        y.append(yi)
+    model = eo.MobileModel(bodies, convention=convention)
+    y = jnp.asarray(np.array(y))
+    ydot = jnp.asarray(rng.normal(size=(4, 6)))
+    applied = jnp.asarray(rng.normal(size=(4, 6)))
+    blocks, b, _ = _lagrange._balance(model, y, ydot, applied)
+    W = eo.mass_matrix(model, y)
+    for i in range(6):
+        for k in range(6):
+            entry = np.broadcast_to(np.asarray(blocks.entry(i, k)), (4,))
+            assert _rel(entry, W[:, i, k]) < CLOSED_FORM_RTOL, (i, k)
+    yddot, _ = eo.accelerations(model, y, ydot, applied)
+    rhs = jnp.stack(b, -1)
+    residual = jnp.einsum("bij,bj->bi", W, yddot) - rhs
+    assert np.max(np.abs(residual)) < CLOSED_FORM_RTOL * np.max(np.abs(rhs))
