@@ -59,8 +59,10 @@ def test_one_bad_element_of_a_batch_leaves_the_others_alone(cache, tmp_path):
             jax.vmap(lambda F, y: run(F, y, throw=True).y)(
                 forces, y_init
             ).block_until_ready()
-    np.testing.assert_allclose(batch.y[0], single.y, rtol=1e-13)
-    np.testing.assert_allclose(batch.work[0], single.work, rtol=1e-13)
+    # the good lane equals the single run to rounding (vectorised code may round
+    # differently: relative to the state's scale of 1 m, so atol for entries near 0)
+    np.testing.assert_allclose(batch.y[0], single.y, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(batch.work[0], single.work, rtol=1e-13, atol=1e-15)
     nonfinite = eo.Status.NONFINITE
     np.testing.assert_array_equal(batch.status, [0, nonfinite, nonfinite])
     np.testing.assert_array_equal(batch.event_index, [-1, 1, 1])
