@@ -49,10 +49,6 @@ def _sum(*terms: _Entry) -> _Entry:
     return functools.reduce(operator.add, kept) if kept else 0.0
 
 
-def _negative(a: _Entry) -> _Entry:
-    return -a
-
-
 def _cofactors(L: AngularVelocityRows) -> tuple[tuple[_Entry, ...], ...]:
     """The cofactor matrix $C$ of a 3x3 matrix $L$: $L^{-1} = C^T/\\det L$."""
 
@@ -61,13 +57,10 @@ def _cofactors(L: AngularVelocityRows) -> tuple[tuple[_Entry, ...], ...]:
         left, right = (x for x in range(3) if x != c)
         a, b = L[top][left], L[top][right]
         d, e = L[bottom][left], L[bottom][right]
-        return _sum(_times(a, e), _negative(_times(b, d)))
+        return _sum(_times(a, e), -_times(b, d))  # (-0.0 is still a structural zero)
 
     return tuple(
-        tuple(
-            minor(r, c) if (r + c) % 2 == 0 else _negative(minor(r, c))
-            for c in range(3)
-        )
+        tuple(minor(r, c) if (r + c) % 2 == 0 else -minor(r, c) for c in range(3))
         for r in range(3)
     )
 
