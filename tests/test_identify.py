@@ -1,6 +1,8 @@
 """Parameter identification: recovery from synthetic data, the equation-error start,
 calibrated standard errors, identifiability flags, bad input and failed steps."""
 
+import importlib
+
 import diffrax
 import equinox as eqx
 import jax
@@ -321,3 +323,84 @@ def test_bad_identify_arguments():
         identify(zero, e, STIFFNESS, init="model", progress=False)
     with pytest.raises(ValueError, match="at least one Experiment"):
         identify(model, [], STIFFNESS, progress=False)
+
+
+# --- a fit that cannot leave its start ------------------------------------------
+
+IDENTIFY_MODULE = importlib.import_module("elasticoop._identify.identify")
+
+
+def _stalling(real, stall_calls):
+    """`levenberg_marquardt` whose calls numbered in `stall_calls` (0-based) stop
+    after the start's evaluation, as a fit does whose trial steps all fail to lower
+    the loss (status "stalled")."""
+    calls = []
+
+    def fit(problem, u0, **kwargs):
+        calls.append(None)
+        if len(calls) - 1 not in stall_calls:
+            return real(problem, u0, **kwargs)
+        trace = real(problem, u0, **{**kwargs, "max_steps": 1})
+        trace.status, trace.reason = "stalled", "stalled on purpose"
+        return trace
+
+    return fit
+
+
+@pytest.mark.slow  # a fit from 2x off (as the recovery test above: compiled once)
+def test_a_stalled_fit_is_run_again_from_the_other_start(two_body_runs, monkeypatch):
+    """Noise-free data: the equation-error start fits better than the 2x-off model,
+    but the fit from it stalls (forced here). `identify` fits again from the
+    model's values, keeps that fit (lower loss) and lands on the truth."""
+    model, runs = two_body_runs
+    start = eqx.tree_at(STIFF_DAMP, model, (2 * model.stiffness, 2 * model.damping))
+    real = optimisers.levenberg_marquardt
+    monkeypatch.setattr(IDENTIFY_MODULE, "levenberg_marquardt", _stalling(real, {0}))
+    result = identify(start, [e for _, e in runs], STIFF_DAMP, window=7, progress=False)
+    assert any("started from the equation-error start" in n for n in result.notes)
+    again = [n for n in result.notes if "never lowered its loss" in n]
+    assert len(again) == 1 and "fitted again from the model's values" in again[0]
+    assert again[0].endswith(", kept")
+    np.testing.assert_array_equal(result.initial, _flat(start, STIFF_DAMP))
+    assert result.converged, result.reason
+    truth = _flat(model, STIFF_DAMP)
+    np.testing.assert_allclose(result.estimate, truth, rtol=RECOVERY_RTOL)
+
+
+@pytest.mark.slow  # two fits of one step each (compiled as above)
+def test_a_fit_that_never_left_its_start_holds_nothing(two_body_runs, monkeypatch):
+    """Every fit stalls at its start: nothing drifted, so nothing is held (even
+    with every parameter flagged), the result is not converged, and the
+    fall-back fit from the other start, no better, is not kept."""
+    model, runs = two_body_runs
+    start = eqx.tree_at(STIFF_DAMP, model, (2 * model.stiffness, 2 * model.damping))
+    real = optimisers.levenberg_marquardt
+    stall = _stalling(real, {0, 1})
+    monkeypatch.setattr(IDENTIFY_MODULE, "levenberg_marquardt", stall)
+    result = identify(
+        start,
+        [e for _, e in runs],
+        STIFF_DAMP,
+        window=7,
+        max_relative_stderr=1e-12,
+        progress=False,
+    )
+    assert result.status == "stalled" and not result.converged
+    assert not np.any(result.identifiable)  # all flagged ...
+    assert not np.any(result.held)  # ... none held
+    assert any("not lower: kept the fit from the equation" in n for n in result.notes)
+    assert not any(n.startswith("held ") for n in result.notes)
+
+
+def test_holding_is_tested_against_the_noise():
+    """The likelihood-ratio test: with unit noise, holding one parameter may raise
+    the loss by half the 99 % quantile of chi-square with 1 degree of freedom
+    (6.635 / 2); with noise level s, by s^2 times that."""
+    _holding_fits = IDENTIFY_MODULE._holding_fits
+    assert _holding_fits(10.0, 10.0 + 3.31, 1, 1.0)
+    assert not _holding_fits(10.0, 10.0 + 3.32, 1, 1.0)
+    assert _holding_fits(10.0, 10.0 + 4 * 3.31, 1, 2.0)
+    assert not _holding_fits(10.0, 10.0 + 4 * 3.32, 1, 2.0)
+    # 3 parameters: chi-square(3) 99 % quantile 11.345
+    assert _holding_fits(0.0, 5.67, 3, 1.0) and not _holding_fits(0.0, 5.68, 3, 1.0)
+    assert not _holding_fits(1.0, 1.0 + 1e-9, 1, np.nan)  # no noise level: exact

@@ -326,6 +326,28 @@ def test_unidentifiable_stiffness_is_held_at_its_start(scenario, fits):
     assert np.all(diff < result.uncertainty.stderr[ok])
 
 
+@pytest.mark.slow  # one more fit of the problem above (compiled already)
+def test_holding_values_the_data_reject_is_refused(scenario, fits):
+    """Every stiffness flagged (a threshold no estimate meets): holding them all at
+    their start, 30 % off, raises the loss far beyond the noise, so none is held
+    and the estimates are those of the fit without holding."""
+    e, _, free = fits
+    start = eqx.tree_at(STIFFNESS, scenario.model, 1.3 * scenario.model.stiffness)
+    result = eo.identify(
+        start,
+        e,
+        STIFFNESS,
+        init="model",
+        fit_initial="state",
+        max_relative_stderr=1e-12,
+        progress=False,
+    )
+    assert not np.any(result.identifiable) and not np.any(result.held)
+    np.testing.assert_array_equal(result.estimate, free.estimate)
+    refused = [n for n in result.notes if "more than the noise explains" in n]
+    assert len(refused) == 1 and "stiffness[0-1].x" in refused[0]
+
+
 def test_savitzky_golay_marks_estimates_of_windows_with_missing_samples():
     """A missing sample makes NaN exactly the estimates whose window holds it (the
     first or last `window` samples for the estimates within half a window of the

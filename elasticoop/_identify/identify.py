@@ -33,6 +33,9 @@ from .step_budget import START_MAX_STEPS, StepBudget
 from .uncertainty import Uncertainty, gauss_newton_uncertainty, with_held_stderr
 
 METHODS = ("levenberg-marquardt", "lbfgs")
+# Significance level of the test that decides whether parameters flagged not
+# identifiable may be held at their start (`_holding_fits`).
+HOLD_TEST_LEVEL = 0.01
 
 
 def identify(
@@ -88,7 +91,11 @@ def identify(
       simulated loss is not above that of the model's values, and from the
       model's values otherwise: with noisy data the differentiated samples can
       spoil the linear estimate, and the start that fits better is kept (a note
-      in the result says which).
+      in the result says which). If the fit from that start stops without
+      lowering its loss (other than at `max_steps`; e.g. a stiff start whose
+      sensitivities are too inaccurate to give a descent direction), it is run
+      again from the other start, and the fit with the lower loss is returned
+      (a note says so).
     - `transform`: reparameterisation of the free leaves: `"log"` (default),
       `"softplus"`, `"identity"`, an `AbstractTransform` such as
       `Bounded(lower, upper)`, or one of these per selected leaf.
@@ -124,17 +131,22 @@ def identify(
       `result.initial_state_stderr`, and the parameters' standard errors are
       marginal over them (see `initial_state`).
     - `hold_unidentifiable`: hold the parameters the data do not determine at
-      their start. When the fit ends (other than `"failed"`, which never left
-      the start) with parameters flagged not identifiable
-      (see `gauss_newton_uncertainty`), they are set to their values in `model`
-      (the optimiser's start where those are outside the transform's range) and
-      the others are fitted again, until no further parameter is flagged: a
-      flagged parameter is never returned at wherever the optimiser drifted
-      along a direction the data do not constrain. `result.held` marks them and
-      the report says so. Holding, not a penalty towards the start, leaves the
-      estimates and standard errors of the others those of a fit in which the
-      held values are known; their standard errors do not include the held
-      values' uncertainty. `False` returns the optimiser's values, flagged.
+      their start. When the fit ends having lowered its loss (a fit that never
+      left its start has nothing to hold) with parameters flagged not
+      identifiable (see `gauss_newton_uncertainty`), they are set to their
+      values in `model` (the optimiser's start where those are outside the
+      transform's range) and the others are fitted again, until no further
+      parameter is flagged: a flagged parameter is never returned at wherever
+      the optimiser drifted along a direction the data do not constrain. The
+      data must accept the held values: if the refit's loss exceeds the fit's
+      by more than the noise explains (a likelihood-ratio test at level
+      `HOLD_TEST_LEVEL` = 1 %, with the fit's noise level), those parameters
+      keep their fitted values, flagged, and a note says so. `result.held` marks
+      the held ones and the report says so. Holding, not a penalty towards the
+      start, leaves the estimates and standard errors of the others those of a
+      fit in which the held values are known; their standard errors do not
+      include the held values' uncertainty. `False` returns the optimiser's
+      values, flagged.
     - `body_names`: names of the bodies in the report's initial-state entries
       (default `object, contact1, ...`).
 
@@ -228,9 +240,9 @@ def identify(
         value, runs = _evaluate(jnp.asarray(u), problem)  # inf if failed
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
         evaluated.append((float(value), label, p, u, ok, steps))
-    # the equation-error start wins ties (it is listed first)
-    best = min(range(len(evaluated)), key=lambda k: evaluated[k][0])
-    _, label, initial, u0, ok, steps = evaluated[best]
+    # the equation-error start wins ties (it is listed first; the sort is stable)
+    order = sorted(range(len(evaluated)), key=lambda k: evaluated[k][0])
+    _, label, initial, u0, ok, steps = evaluated[order[0]]
     if len(evaluated) > 1:
         notes.append(
             f"started from {label} (loss "
@@ -239,23 +251,19 @@ def identify(
         )
     if not np.all(ok):
         _raise_start_failure(problem, ok)
-    # Trial points that need many more steps than the current point are far off
-    # (much stiffer, or lightly damped at high frequency): treat them as failed
-    # rather than integrating them to the end.
-    budget = StepBudget(adaptive=max_sim_steps is None)
-    problem = budget.start(problem, int(np.max(steps)))
-    common: dict[str, Any] = dict(
-        xtol=xtol,
-        ftol=ftol,
-        max_steps=max_steps,
-        progress=progress,
-        n_experiments=len(experiments),
-        budget=budget,
-    )
+    start_problem = problem
 
-    def fit(problem: FitProblem, u0, refit=False) -> tuple[FitProblem, Trace]:
+    def fit(problem: FitProblem, u0, budget, refit=False) -> tuple[FitProblem, Trace]:
         # a refit starts next to an optimum: its loss need not decrease
-        kwargs = dict(common, expect_decrease=not refit)
+        kwargs: dict[str, Any] = dict(
+            xtol=xtol,
+            ftol=ftol,
+            max_steps=max_steps,
+            progress=progress,
+            n_experiments=len(experiments),
+            budget=budget,
+            expect_decrease=not refit,
+        )
         if optimizer is None:
             trace = levenberg_marquardt(problem, u0, **kwargs)
         else:
@@ -268,13 +276,54 @@ def identify(
             trace.n_simulations += len(experiments)
         return problem, trace
 
-    problem, trace = fit(problem, u0)
+    def fit_from(u0, steps) -> tuple[FitProblem, Trace, StepBudget]:
+        # Trial points that need many more steps than the current point are far
+        # off (much stiffer, or lightly damped at high frequency): treat them as
+        # failed rather than integrating them to the end.
+        budget = StepBudget(adaptive=max_sim_steps is None)
+        problem = budget.start(start_problem, int(np.max(steps)))
+        problem, trace = fit(problem, u0, budget)
+        return problem, trace, budget
+
+    problem, trace, budget = fit_from(u0, steps)
     if not trace.loss_history:
         raise ValueError(
             f"the simulation with sensitivities fails at the start, although the "
             f"plain one succeeds (method {method_name}); start from other values "
             f"or pass another solver"
         )
+    # A fit that stopped without lowering the loss from the better start (e.g.
+    # where the sensitivities of a stiff start are not accurate enough to give a
+    # descent direction) is tried again from the other start; the lower end wins.
+    # One that ran out of `max_steps` is not: the caller limited the work.
+    other_simulations = 0
+    if (
+        not _decreased(trace)
+        and trace.status != "max_steps"
+        and len(order) > 1
+        and np.all(evaluated[order[1]][4])
+    ):
+        _, label2, initial2, u02, _, steps2 = evaluated[order[1]]
+        problem2, trace2, budget2 = fit_from(u02, steps2)
+        better = bool(trace2.loss_history) and (
+            trace2.loss_history[-1] < trace.loss_history[-1]
+        )
+        notes.append(
+            f"the fit from {label} never lowered its loss ({trace.reason}); fitted "
+            f"again from {label2}: loss "
+            + (
+                f"{trace2.loss_history[0]:.6g} -> {trace2.loss_history[-1]:.6g}"
+                if trace2.loss_history
+                else "not available (its sensitivities fail)"
+            )
+            + (", kept" if better else f", not lower: kept the fit from {label}")
+        )
+        if better:
+            other_simulations = trace.n_simulations
+            problem, trace, budget = problem2, trace2, budget2
+            initial, u0 = initial2, u02
+        else:
+            other_simulations = trace2.n_simulations
     n_p = free.size
     # Held parameters: at the model's values, or the optimiser's start where those
     # are outside the transform's range.
@@ -286,8 +335,9 @@ def identify(
     )
     settings = (init_names, rcond, max_relative_stderr)
     analysis = _analyse(trace, problem, held, held_stderr, *settings)
-    # a failed fit never left its start: nothing drifted, nothing to hold
-    rounds = n_p if hold_unidentifiable and trace.status != "failed" else 0
+    # a fit that never left its start (failed, or no lower loss): nothing drifted,
+    # nothing to hold
+    rounds = n_p if hold_unidentifiable and _decreased(trace) else 0
     for _ in range(rounds):
         unc = analysis[0]
         newly = ~unc.identifiable & ~held
@@ -297,12 +347,26 @@ def identify(
         now_held = held | newly
         u_held_start[:n_p] = np.where(now_held, u_hold, u_held_start[:n_p])
         refit_problem, refit = fit(
-            with_held(problem, now_held, u_hold), jnp.asarray(u_held_start), True
+            with_held(problem, now_held, u_hold),
+            jnp.asarray(u_held_start),
+            budget,
+            refit=True,
         )
         if not refit.loss_history:
             notes.append(
                 f"holding {', '.join(_names(free.names, newly))} at their start "
                 f"failed to simulate; they keep the fitted values"
+            )
+            break
+        before, after = trace.loss_history[-1], refit.loss_history[-1]
+        if not _holding_fits(before, after, int(np.sum(newly)), unc.noise_scale):
+            trace.n_simulations += refit.n_simulations
+            notes.append(
+                f"holding {', '.join(_names(free.names, newly))} at their start "
+                f"values raises the loss from {before:.6g} to {after:.6g}, more than "
+                f"the noise explains (likelihood-ratio test at {HOLD_TEST_LEVEL:g}): "
+                f"the data reject those values, so the parameters keep their fitted "
+                f"values (flagged: poorly determined)"
             )
             break
         held_stderr[newly] = unc.stderr[newly]
@@ -348,7 +412,9 @@ def identify(
         start=np.asarray(start),
         uncertainty=unc,
         n_iterations=trace.n_iterations,
-        n_simulations=trace.n_simulations + len(evaluated) * len(experiments),
+        n_simulations=trace.n_simulations
+        + other_simulations
+        + len(evaluated) * len(experiments),
         n_rejected=trace.n_rejected,
         n_failed_trials=trace.n_failed_trials,
         method=method_name,
@@ -438,6 +504,26 @@ def _analyse(
             nuisance=jacobian_p[:, keep],
         ).stderr
     return with_held_stderr(unc, held, held_stderr), estimate, initial_stderr
+
+
+def _decreased(trace: Trace) -> bool:
+    """Whether the fit lowered the loss from its start (an accepted step)."""
+    history = trace.loss_history
+    return len(history) > 1 and bool(history[-1] < history[0])
+
+
+def _holding_fits(loss_free, loss_held, n_held: int, noise_scale) -> bool:
+    """The likelihood-ratio test of holding `n_held` parameters at given values:
+    with the noise level $s$ of the fit (1 where `Experiment.sigma` is given), the
+    held fit's loss may exceed the free fit's by at most
+    $\\tfrac12 s^2 \\chi^2_{1-\\alpha}(n_{held})$, $\\alpha$ = `HOLD_TEST_LEVEL`
+    (under Gaussian noise, $2\\Delta L / s^2 \\sim \\chi^2(n_{held})$ when the held
+    values are right)."""
+    from scipy.stats import chi2
+
+    s2 = float(noise_scale) ** 2 if np.isfinite(noise_scale) else 0.0
+    allowed = 0.5 * s2 * float(chi2.ppf(1.0 - HOLD_TEST_LEVEL, n_held))
+    return bool(loss_held - loss_free <= allowed)
 
 
 def _merge(first: Trace, then: Trace) -> Trace:
