@@ -405,6 +405,28 @@ def test_chunk_size_from_memory_budget(study):
         mc.chunk_size_for(study, 10_000, batch_width=64)
 
 
+class _Device:
+    """A device reporting `bytes_limit` (as GPUs do) or no memory figures (CPUs)."""
+
+    def __init__(self, limit):
+        self.limit = limit
+
+    def memory_stats(self):
+        return None if self.limit is None else {"bytes_limit": self.limit}
+
+
+def test_memory_budget_from_the_devices():
+    """Half of the smallest GPU's memory per device; CPUs (no figure) and small
+    devices keep the default budget."""
+    gib = 2**30
+    assert mc.memory_budget_for([_Device(80 * gib)]) == 40 * gib
+    assert mc.memory_budget_for([_Device(80 * gib), _Device(40 * gib)]) == 40 * gib
+    assert mc.memory_budget_for([_Device(None)]) == gib
+    assert mc.memory_budget_for([_Device(80 * gib), _Device(None)]) == gib
+    assert mc.memory_budget_for([_Device(gib)]) == gib  # never below the default
+    assert mc.memory_budget_for(jax.devices("cpu")) == gib
+
+
 BAD = {
     "where not a leaf": (
         lambda: _study(

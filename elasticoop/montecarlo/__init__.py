@@ -13,6 +13,7 @@ from .distributions import (
 from .execution import (
     INVALID_SAMPLE as INVALID_SAMPLE,
     chunk_size_for as chunk_size_for,
+    memory_budget_for as memory_budget_for,
     run_study as run_study,
 )
 from .lock import StoreLockedError as StoreLockedError

@@ -44,7 +44,11 @@ from .store import (
 from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
 
 DEFAULT_BATCH_WIDTH = 32
-DEFAULT_MEMORY_BUDGET = 2**30  # bytes
+DEFAULT_MEMORY_BUDGET = 2**30  # bytes, where the devices do not report their memory
+# Share of an accelerator's memory (the smallest of the devices) a chunk may use
+# per device when the devices report their memory (GPUs); the rest is left to
+# XLA's own buffers and to other programs.
+DEVICE_MEMORY_SHARE = 0.5
 # Working memory of one sample being integrated, in units of its Trajectory's size
 # (diffrax's output buffer, the stages and the vmap'd loop's copies), plus a fixed
 # part for the solver state. Checked against XLA's memory analysis in
@@ -99,6 +103,27 @@ def working_memory_per_sample(study: Study) -> int:
     `_WORK_FIXED`."""
     trajectory = 2 * len(study.ts) * study.inputs.model.n_bodies * 6 * 8
     return _WORK_FACTOR * trajectory + _WORK_FIXED
+
+
+def memory_budget_for(devices) -> int:
+    """The default memory budget of a chunk on `devices`: `DEVICE_MEMORY_SHARE` of
+    the smallest device's memory (`Device.memory_stats()["bytes_limit"]`, which
+    GPUs report) times the number of devices, or `DEFAULT_MEMORY_BUDGET` where a
+    device reports none (CPUs), and never less than that."""
+    limits = []
+    for device in devices:
+        try:
+            stats = device.memory_stats()
+        except Exception:  # a backend that does not implement it
+            stats = None
+        limit = (stats or {}).get("bytes_limit")
+        if not limit:
+            return DEFAULT_MEMORY_BUDGET
+        limits.append(int(limit))
+    if not limits:
+        return DEFAULT_MEMORY_BUDGET
+    per_device = int(DEVICE_MEMORY_SHARE * min(limits))
+    return max(DEFAULT_MEMORY_BUDGET, per_device * len(limits))
 
 
 def chunk_size_for(
@@ -180,7 +205,7 @@ def run_study(
     *,
     chunk_size: int | None = None,
     batch_width: int = DEFAULT_BATCH_WIDTH,
-    memory_budget: int = DEFAULT_MEMORY_BUDGET,
+    memory_budget: int | None = None,
     devices=None,
     progress: bool = True,
     on_chunk: Callable[[int], None] | None = None,
@@ -201,6 +226,8 @@ def run_study(
     - `batch_width`: samples integrated together by `vmap` on each device. Results
       depend on it at the level of floating-point rounding, so it is recorded.
     - `memory_budget`: bytes the chunk may use (sets the default `chunk_size`).
+      Default: from the devices' memory (`memory_budget_for`): half of each
+      GPU's memory, 1 GiB on CPUs.
     - `devices`: devices to shard over (default: `jax.devices()`, i.e. every
       device of every process after `jax.distributed.initialize`).
     - `progress`: show a progress bar (samples done, rate, ETA) on the first process.
@@ -228,6 +255,8 @@ def run_study(
     ):
         raise ValueError(f"batch_width must be a positive integer, got {batch_width!r}")
     devices = list(jax.devices() if devices is None else devices)
+    if memory_budget is None:
+        memory_budget = memory_budget_for(devices)
     mesh = Mesh(np.array(devices), ("samples",))
     with contextlib.ExitStack() as stack:
         if store is None:
