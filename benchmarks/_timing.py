@@ -21,6 +21,21 @@ def best_time(fn, *args, repeats: int = 5) -> float:
     return float(best)
 
 
+def interleaved_best_times(fns: dict, *args, rounds: int = 7) -> dict:
+    """Best wall time [s] of each `fns[name](*args)` over `rounds` rounds, the
+    functions timed in turn within a round (so slow spells of a shared machine hit
+    them alike), after one warm-up call each."""
+    for fn in fns.values():
+        jax.block_until_ready(fn(*args))
+    best = dict.fromkeys(fns, np.inf)
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            start = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            best[name] = min(best[name], time.perf_counter() - start)
+    return {name: float(t) for name, t in best.items()}
+
+
 def looped_rhs(rhs, n_evals: int):
     """A jitted `f(args, ys, vs, forces)` that evaluates `rhs(args, y, v, force)`,
     vmapped over the leading axis, `n_evals` times inside one `fori_loop`, each
