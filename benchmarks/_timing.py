@@ -21,18 +21,19 @@ def best_time(fn, *args, repeats: int = 5) -> float:
     return float(best)
 
 
-def interleaved_best_times(fns: dict, *args, rounds: int = 7) -> dict:
-    """Best wall time [s] of each `fns[name](*args)` over `rounds` rounds, the
-    functions timed in turn within a round (so slow spells of a shared machine hit
-    them alike), after one warm-up call each."""
-    for fn in fns.values():
+def interleaved_best_times(calls: dict, rounds: int, repeats: int = 1) -> dict:
+    """Best wall time [s] of each call over `rounds` rounds of `repeats` calls,
+    the calls (`{name: (fn, args)}`) timed in turn within a round (so slow spells
+    of a shared machine hit them alike), after one warm-up call each."""
+    for fn, args in calls.values():
         jax.block_until_ready(fn(*args))
-    best = dict.fromkeys(fns, np.inf)
+    best = dict.fromkeys(calls, np.inf)
     for _ in range(rounds):
-        for name, fn in fns.items():
-            start = time.perf_counter()
-            jax.block_until_ready(fn(*args))
-            best[name] = min(best[name], time.perf_counter() - start)
+        for name, (fn, args) in calls.items():
+            for _ in range(repeats):
+                start = time.perf_counter()
+                jax.block_until_ready(fn(*args))
+                best[name] = min(best[name], time.perf_counter() - start)
     return {name: float(t) for name, t in best.items()}
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _timing import best_time, looped_rhs  # noqa: E402
+from _timing import interleaved_best_times, looped_rhs  # noqa: E402
 from reference import fast_jax_rhs, numpy_params, numpy_rhs  # noqa: E402
 
 import elasticoop as eo  # noqa: E402
@@ -95,15 +95,12 @@ def run(quick: bool = False) -> dict:
     for batch in batches:
         ys, vs, fs = _states(y0, batch)
         n_evals = max(2, evals // batch)
-        compiled = {
-            name: (looped_rhs(fn, n_evals), args)
+        calls = {
+            name: (looped_rhs(fn, n_evals), (args, ys, vs, fs))
             for name, (fn, args) in variants.items()
         }
-        best = dict.fromkeys(variants, np.inf)
-        for _ in range(rounds):  # interleaved, so load changes hit all alike
-            for name, (fn, args) in compiled.items():
-                t = best_time(fn, args, ys, vs, fs, repeats=3)
-                best[name] = min(best[name], t / (n_evals * batch))
+        times = interleaved_best_times(calls, rounds, repeats=3)
+        best = {name: t / (n_evals * batch) for name, t in times.items()}
         row = {"batch": batch}
         row.update({f"{name}_us": 1e6 * t for name, t in best.items()})
         row["library_over_fast"] = best["library"] / best["fast_hand_written"]
