@@ -297,13 +297,13 @@ def identify(
     # descent direction) is tried again from the other start; the lower end wins.
     # One that ran out of `max_steps` is not: the caller limited the work.
     other_simulations = 0
+    _, label2, initial2, u02, ok2, steps2 = evaluated[order[-1]]  # (two at most)
     if (
         not _decreased(trace)
         and trace.status != "max_steps"
         and len(order) > 1
-        and np.all(evaluated[order[1]][4])
+        and np.all(ok2)
     ):
-        _, label2, initial2, u02, _, steps2 = evaluated[order[1]]
         problem2, trace2, budget2 = fit_from(u02, steps2)
         better = bool(trace2.loss_history) and (
             trace2.loss_history[-1] < trace.loss_history[-1]
