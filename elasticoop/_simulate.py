@@ -1,14 +1,13 @@
 """`simulate`: a thin layer over `diffrax.diffeqsolve`."""
 
 from collections.abc import Callable
+from functools import partial
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-import optimistix as optx
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Float
 
 from ._custom_types import (
     ArrayInput,
@@ -19,6 +18,7 @@ from ._custom_types import (
     Times,
     Validated,
 )
+from ._event_location import locate_event
 from ._forces import (
     AbstractForce,
     check_force,
@@ -31,6 +31,7 @@ from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
 from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
 from ._status import Status, status_message
+from ._step_control import MIN_STEP_ULPS, StopFailedSteps
 from ._trajectory import Trajectory
 from ._validation import as_float_array, check_times, is_concrete
 
@@ -236,6 +237,11 @@ def _driven(
     return y, ydot, yddot, damping, reaction, applied
 
 
+def _of_positions(cond_fn: Callable, t: TimeLike, y: State, args: _Args) -> Scalar:
+    """A stop condition of the ODE state as a function of $Y$ alone."""
+    return cond_fn(t, (y,), args)
+
+
 def _regularity(model: AbstractElasticModel, y: State) -> BodyScalars:
     return jax.vmap(model.rotation.regularity)(y[:, 3:])
 
@@ -246,77 +252,6 @@ def _link_margin(
     """$|r_i - r_j| - tol\\,\\rho_0$ per link; links with $\\rho_0 = 0$ never stop."""
     margin = model.link_lengths(y) - link_tol * model.rest_length
     return jnp.where(model.rest_length > 0, margin, jnp.inf)
-
-
-# A step shorter than this many units in the last place of the times that gives NaN
-# or inf ends the run: the vector field is not finite right after the current time.
-_MIN_STEP_ULPS = 16
-
-
-class _StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
-    """An adaptive step-size controller that ends the solve at once (diffrax's
-    `RESULTS.dt_min_reached`) where no step can succeed. That is when a rejected
-    step gave NaN or inf although it was shorter than `min_step` (or its length was
-    NaN or inf itself): the vector field is not finite right after the current
-    time, and shorter steps only repeat that. Or when the next step cannot advance
-    time any more (the step size has collapsed on finite values). Or, from the
-    first step, when `halt` is set (a start that is not simulated). Otherwise it is
-    `controller`.
-
-    Its state is `controller`'s, whether the last step tried held NaN or inf (its
-    end state or its length), which tells a non-finite failure from a collapse of
-    the step size on finite values, and the time that step tried to reach."""
-
-    controller: diffrax.AbstractAdaptiveStepSizeController
-    min_step: Scalar
-    halt: Bool[Array, ""]
-    # `controller`'s, which diffrax reads from the outermost controller
-    rtol: int | float | Array | np.ndarray
-    atol: int | float | Array | np.ndarray
-    norm: Callable = eqx.field(static=True)
-
-    def __init__(
-        self,
-        controller: diffrax.AbstractAdaptiveStepSizeController,
-        min_step: Scalar,
-        halt: Bool[Array, ""],
-    ):
-        self.controller = controller
-        self.min_step = min_step
-        self.halt = halt
-        self.rtol = controller.rtol
-        self.atol = controller.atol
-        self.norm = controller.norm
-
-    def wrap(self, direction):
-        controller = self.controller.wrap(direction)
-        return eqx.tree_at(lambda c: c.controller, self, controller)
-
-    def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
-        t_next, state = self.controller.init(
-            terms, t0, t1, y0, dt0, args, func, error_order
-        )
-        return t_next, (state, jnp.array(False), jnp.asarray(t0))
-
-    def adapt_step_size(
-        self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
-    ):
-        state, _, _ = controller_state
-        keep, next_t0, next_t1, made_jump, state, result = (
-            self.controller.adapt_step_size(
-                t0, t1, y0, y1_candidate, args, y_error, error_order, state
-            )
-        )
-        finite = jnp.isfinite(t1) & jnp.isfinite(next_t1)
-        for leaf in jax.tree.leaves(y1_candidate):
-            finite = finite & jnp.all(jnp.isfinite(leaf))
-        # `not >=`, `not >`: also true for NaN
-        short = jnp.logical_not(t1 - t0 >= self.min_step)
-        stalled = jnp.logical_not(next_t1 > next_t0)
-        rejected = jnp.logical_not(keep)
-        stop = self.halt | rejected & (short & ~finite | stalled)
-        result = diffrax.RESULTS.where(stop, diffrax.RESULTS.dt_min_reached, result)
-        return keep, next_t0, next_t1, made_jump, (state, ~finite, t1), result
 
 
 @eqx.filter_jit
@@ -381,27 +316,27 @@ def _solve(
             return jnp.where(covered, 1.0, interval[1] - t)
 
         cond_fns["samples_end"] = samples_end
-    event = diffrax.Event(
-        list(cond_fns.values()),
-        root_finder=optx.Newton(rtol=1e-12, atol=1e-12),
-        direction=False,
-    )
+    # No root finder: diffrax ends the solve at the end of the step in which a
+    # condition changed sign, and `locate_event` finds the crossing in that step.
+    event = diffrax.Event(list(cond_fns.values()), direction=False)
     controller: diffrax.AbstractAdaptiveStepSizeController
     controller = diffrax.PIDController(rtol=rtol, atol=atol)
     jump_ts = jump_times(force)
     if jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
     resolution = jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(ts[0]), jnp.abs(ts[-1]))
-    controller = _StopFailedSteps(controller, _MIN_STEP_ULPS * resolution, halt)
+    controller = StopFailedSteps(controller, MIN_STEP_ULPS * resolution, halt)
     zero = jnp.zeros((), dtype=y_init.dtype)
+    terms = diffrax.ODETerm(_vector_field)
+    args = (model, force, side, prescribed)
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(_vector_field),
+        terms,
         solver,
         t0=ts[0],
         t1=ts[-1],
         dt0=dt0,
         y0=(y_start, ydot_start, zero, zero),
-        args=(model, force, side, prescribed),
+        args=args,
         saveat=diffrax.SaveAt(ts=ts, t1=True, controller_state=True),
         stepsize_controller=controller,
         adjoint=adjoint,
@@ -426,6 +361,8 @@ def _solve(
     last = jnp.argmax(jnp.where(jnp.isfinite(sol.ts), sol.ts, -jnp.inf))
     t_end = sol.ts[last]
     y_end = y_all[last]
+    ydot_end = ydot_all[last]
+    record = sol.controller_state
 
     event_hit = sol.result == diffrax.RESULTS.event_occurred
     hits = {
@@ -434,7 +371,37 @@ def _solve(
     }
     no_hit = jnp.array(False)
     step_failed = sol.result == diffrax.RESULTS.dt_min_reached
-    _, nonfinite_step, t_tried = sol.controller_state
+
+    # Where an event ended the run, diffrax stopped at the end of the step in which
+    # its condition changed sign: the run ends at the crossing inside that step
+    # (not differentiated, see `locate_event`).
+    def crossing(t_start, y_start, t_stop, y_stop, ydot_stop):
+        t_event, y_event, ydot_event = locate_event(
+            t_start,
+            t_stop,
+            y_start[:2],
+            (y_stop, ydot_stop),
+            args,
+            [partial(_of_positions, fn) for fn in cond_fns.values()],
+            sol.event_mask,
+        )
+        if prescribed is not None:
+            y_p, ydot_p, _ = prescribed.state(t_event)
+            y_event = jnp.where(prescribed.mask, y_p, y_event)
+            ydot_event = jnp.where(prescribed.mask, ydot_p, ydot_event)
+        return t_event, y_event, ydot_event
+
+    def step_end(t_start, y_start, t_stop, y_stop, ydot_stop):
+        return t_stop, y_stop, ydot_stop
+
+    t_end, y_end, ydot_end = jax.lax.cond(
+        event_hit,
+        crossing,
+        step_end,
+        *jax.lax.stop_gradient(
+            (record.t_start, record.y_start, t_end, y_end, ydot_end)
+        ),
+    )
     status = jnp.select(
         [
             nonfinite0,
@@ -444,7 +411,7 @@ def _solve(
             hits.get("collapse", no_hit),
             hits.get("samples_end", no_hit),
             sol.result == diffrax.RESULTS.max_steps_reached,
-            step_failed & nonfinite_step,
+            step_failed & record.nonfinite,
             ~(event_hit | (sol.result == diffrax.RESULTS.successful)),
         ],
         [
@@ -468,8 +435,8 @@ def _solve(
     # finite (-1 when both are finite everywhere). A collapsed step ends within a
     # few units in the last place of `t_end`: the force is evaluated at the time it
     # tried to reach, and at the last state.
-    t_force = jnp.where(jnp.isfinite(t_tried), t_tried, t_end)
-    applied_end = _applied(model, force, t_force, y_end, ydot_all[last])
+    t_force = jnp.where(jnp.isfinite(record.t_tried), record.t_tried, t_end)
+    applied_end = _applied(model, force, t_force, y_end, ydot_end)
     force_finite = jnp.isfinite(applied_end).all(axis=1)
     bad_rows = ~(start_finite & force_finite)
     bad_body = jnp.where(jnp.any(bad_rows), jnp.argmax(bad_rows), -1)

@@ -1,0 +1,106 @@
+"""The step-size controller of `simulate`: diffrax's, plus a clean stop where no step
+can succeed, and a record of the last step for locating events."""
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, PyTree
+
+from ._custom_types import Scalar
+
+# A step shorter than this many units in the last place of the times that gives NaN
+# or inf ends the run: the vector field is not finite right after the current time.
+MIN_STEP_ULPS = 16
+
+
+class StepRecord(NamedTuple):
+    """The state of `StopFailedSteps`: the wrapped controller's state, and what the
+    run's end is explained and located with."""
+
+    inner: Any
+    # whether the last step tried held NaN or inf (its end state or its length)
+    nonfinite: Bool[Array, ""]
+    # the time that step tried to reach
+    t_tried: Scalar
+    # the start of the last accepted step, from which `locate_event` takes it again
+    t_start: Scalar
+    y_start: PyTree[Array]
+
+
+class StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
+    """An adaptive step-size controller that ends the solve at once (diffrax's
+    `RESULTS.dt_min_reached`) where no step can succeed. That is when a rejected
+    step gave NaN or inf although it was shorter than `min_step` (or its length was
+    NaN or inf itself): the vector field is not finite right after the current
+    time, and shorter steps only repeat that. Or when the next step cannot advance
+    time any more (the step size has collapsed on finite values). Or, from the
+    first step, when `halt` is set (a start that is not simulated). Otherwise it is
+    `controller`.
+
+    Its state is a `StepRecord`: `controller`'s state, whether the last step tried
+    held NaN or inf, which tells a non-finite failure from a collapse of the step
+    size on finite values, the time that step tried to reach, and the start of the
+    last accepted step."""
+
+    controller: diffrax.AbstractAdaptiveStepSizeController
+    min_step: Scalar
+    halt: Bool[Array, ""]
+    # `controller`'s, which diffrax reads from the outermost controller
+    rtol: int | float | Array | np.ndarray
+    atol: int | float | Array | np.ndarray
+    norm: Callable = eqx.field(static=True)
+
+    def __init__(
+        self,
+        controller: diffrax.AbstractAdaptiveStepSizeController,
+        min_step: Scalar,
+        halt: Bool[Array, ""],
+    ):
+        self.controller = controller
+        self.min_step = min_step
+        self.halt = halt
+        self.rtol = controller.rtol
+        self.atol = controller.atol
+        self.norm = controller.norm
+
+    def wrap(self, direction):
+        controller = self.controller.wrap(direction)
+        return eqx.tree_at(lambda c: c.controller, self, controller)
+
+    def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
+        t_next, state = self.controller.init(
+            terms, t0, t1, y0, dt0, args, func, error_order
+        )
+        t0 = jnp.asarray(t0)
+        return t_next, StepRecord(state, jnp.array(False), t0, t0, y0)
+
+    def adapt_step_size(
+        self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
+    ):
+        keep, next_t0, next_t1, made_jump, state, result = (
+            self.controller.adapt_step_size(
+                t0, t1, y0, y1_candidate, args, y_error, error_order,
+                controller_state.inner,
+            )
+        )  # fmt: skip
+        finite = jnp.isfinite(t1) & jnp.isfinite(next_t1)
+        for leaf in jax.tree.leaves(y1_candidate):
+            finite = finite & jnp.all(jnp.isfinite(leaf))
+        # `not >=`, `not >`: also true for NaN
+        short = jnp.logical_not(t1 - t0 >= self.min_step)
+        stalled = jnp.logical_not(next_t1 > next_t0)
+        rejected = jnp.logical_not(keep)
+        stop = self.halt | rejected & (short & ~finite | stalled)
+        result = diffrax.RESULTS.where(stop, diffrax.RESULTS.dt_min_reached, result)
+        t_start, y_start = jax.tree.map(
+            lambda new, old: jnp.where(keep, new, old),
+            (t0, y0),
+            (controller_state.t_start, controller_state.y_start),
+        )
+        record = StepRecord(state, ~finite, t1, t_start, y_start)
+        return keep, next_t0, next_t1, made_jump, record, result
