@@ -37,7 +37,7 @@ from jaxtyping import Array, Bool
 from ._custom_types import Scalar, State
 
 # Newton's method, as diffrax's event root finder was configured in `simulate`.
-ROOT_FINDER = optx.Newton(rtol=1e-12, atol=1e-12)
+ROOT_FINDER: optx.Newton = optx.Newton(rtol=1e-12, atol=1e-12)
 
 
 def hermite(
@@ -95,7 +95,7 @@ def locate_event(
         value = jnp.sum(jnp.where(mask, values, 0.0))
         return jnp.where(jnp.any(mask), value, t1 - t)
 
-    root = optx.root_find(
+    root: optx.Solution = optx.root_find(
         distance,
         ROOT_FINDER,
         y0=t1,
