@@ -109,7 +109,8 @@ def simulate(
       `diffrax.TqdmProgressMeter()` for a progress bar on a long run (default none).
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
-    model, the initial state and the forces, and `jax.vmap`-able over any of them.
+    model, the initial state and the forces (`event_time`, where a run stopped
+    early, is not differentiated), and `jax.vmap`-able over any of them.
 
     A run stops at once, with its own `Status`, at NaN or inf in the state, the
     forces or the step size (`NONFINITE`), when the step size collapses on finite
