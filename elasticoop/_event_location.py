@@ -10,12 +10,13 @@ depend on $Y$ only (the orientation's regularity, the link lengths, time), and t
 interpolant needs no evaluation of the right-hand side.
 
 Why not diffrax's root finder: it is part of the solve, so under `jax.grad` its
-implicit derivative is traced, transposed and compiled with it, and every compiled
-solve carries a second copy of the solver's step to interpolate with. Measured on
-the default scenario (2-core CPU, fresh processes), tracing and compiling took
-4.7-5.1 s with it and 3.7-4.6 s without for one run, 6.0-7.3 s and 4.8-4.9 s for a
-`vmap` over 64 runs, 18.5-22.4 s and 15.7-18.6 s for a reverse-mode gradient; the
-runs themselves took the same time. The crossing time is not differentiated: a run
+implicit derivative is traced, transposed and compiled with it, and the dense
+output of each step is kept for it through the loop. Measured on
+the default scenario (2-core CPU, the two versions in one process, their runs
+interleaved): a `vmap` over 64 runs took 12.8 ms per run without it against 14.1
+ms with it, and tracing plus compiling took 3.9 s against 4.3 s for one run, 4.4-5.4
+s against 5.0-5.6 s for the `vmap`, and 8.7-18.8 s against 11.6-18.9 s for a
+reverse-mode gradient. The crossing time is not differentiated: a run
 that stops early has NaN outputs after it, so a loss over it has no gradient to
 give. The interpolant is one order below the solver's own (its error is $O(h^4)$
 in the step $h$); the event times of `tests/test_errors.py` (a uniform spin and a
