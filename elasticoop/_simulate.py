@@ -328,10 +328,9 @@ def _solve(
     resolution = jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(ts[0]), jnp.abs(ts[-1]))
     controller = StopFailedSteps(controller, MIN_STEP_ULPS * resolution, halt)
     zero = jnp.zeros((), dtype=y_init.dtype)
-    terms = diffrax.ODETerm(_vector_field)
     args = (model, force, side, prescribed)
     sol = diffrax.diffeqsolve(
-        terms,
+        diffrax.ODETerm(_vector_field),
         solver,
         t0=ts[0],
         t1=ts[-1],

@@ -27,7 +27,7 @@ class StepRecord(NamedTuple):
     nonfinite: Bool[Array, ""]
     # the time that step tried to reach
     t_tried: Scalar
-    # the start of the last accepted step, from which `locate_event` takes it again
+    # the start of the last accepted step, where `locate_event` interpolates from
     t_start: Scalar
     y_start: PyTree[Array]
 

@@ -8,8 +8,6 @@ from elasticoop._event_location import hermite, locate_event
 T0, T1 = 0.2, 0.7
 STEP = (jnp.asarray(T0), jnp.asarray(T1))
 COEFFS = np.array([[0.3, -1.2, 0.5, 2.0], [-0.4, 0.1, 1.5, -0.7]])  # cubics in t
-
-
 SCALE = np.arange(1.0, 7.0)  # a state of shape (2 bodies, 6): scaled copies
 
 
@@ -39,24 +37,14 @@ def test_the_triggered_condition_decides_the_crossing():
     def never(t, y, args):
         return jnp.asarray(np.inf)
 
-    t, y, _ = locate_event(
-        *STEP,
-        start,
-        end,
-        level,
-        [never, first],
-        [jnp.array(False), jnp.array(True)],
-    )
+    def locate(*triggered):
+        mask = [jnp.array(x) for x in triggered]
+        return locate_event(*STEP, start, end, level, [never, first], mask)
+
+    t, y, _ = locate(False, True)
     np.testing.assert_allclose(float(t), 0.55, rtol=1e-12)
     np.testing.assert_allclose(y, _path(0.55)[0], rtol=1e-12)
     # nothing triggered: the step's end
-    t, y, _ = locate_event(
-        *STEP,
-        start,
-        end,
-        level,
-        [never, first],
-        [jnp.array(False), jnp.array(False)],
-    )
+    t, y, _ = locate(False, False)
     assert float(t) == T1
     np.testing.assert_allclose(y, end[0], rtol=1e-13)
