@@ -32,6 +32,7 @@ the structure of the problem is used to keep the derivatives cheap:
 
 from collections.abc import Iterable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -134,7 +135,11 @@ def _ldl_solve3(
 
 def mass_matrix(model: AbstractElasticModel, y: StateLike) -> MassBlocks:
     """The diagonal blocks $W_i(Y_i)$ of the mass matrix, shape `(bodies, 6, 6)`."""
-    y = jnp.asarray(y)
+    return _mass_matrix(model, jnp.asarray(y))
+
+
+@eqx.filter_jit
+def _mass_matrix(model: AbstractElasticModel, y: State) -> MassBlocks:
     q = _coordinates(y)
     W = _mass_matrix_columns(model, q, _coordinates(jnp.zeros_like(y)), _COORDINATES)
     return jnp.stack(
@@ -204,7 +209,18 @@ def accelerations(
     $\\partial R/\\partial\\dot Y$
     (whose product with $\\dot Y$ is the dissipated power $2R$).
     """
-    y, ydot, applied = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
+    return _accelerations(
+        model, jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
+    )
+
+
+# Each public term is one compiled program (per model structure and shape): called
+# outside `jit` (an analysis, a notebook cell) it would otherwise run op by op,
+# compiling each op on its first use. Inside a trace the call is inlined.
+@eqx.filter_jit
+def _accelerations(
+    model: AbstractElasticModel, y: State, ydot: State, applied: State
+) -> tuple[State, State]:
     W, b, damping = _balance(model, y, ydot, applied)
     return jnp.stack(W.solve(b), -1), damping
 

@@ -98,12 +98,7 @@ def linearize(
     free = np.flatnonzero(~mask.reshape(-1))
     if free.size == 0:
         raise ValueError("prescribed fixes every coordinate: no motion to linearize")
-    W = mass_matrix(model, y_eq)
-    M = jax.scipy.linalg.block_diag(*W)
-    K = model.stiffness_matrix(y_eq)
-    D = jax.hessian(lambda v: model.dissipation(y_eq, v.reshape(n, 6)), argnums=0)(
-        jnp.zeros(6 * n)
-    )
+    M, K, D = _second_derivatives(model, y_eq)
     index = np.ix_(free, free)
     B = jnp.eye(6 * n)[free]
     names = dof_names(body_names_of(body_names, n), model.convention)
@@ -116,3 +111,17 @@ def linearize(
         free_indices=tuple(int(i) for i in free),
         names=tuple(names[i] for i in free),
     )
+
+
+@eqx.filter_jit  # one program, not op by op (this runs outside `jit`)
+def _second_derivatives(
+    model: AbstractElasticModel, y_eq: State
+) -> tuple[Float[Array, "n n"], Float[Array, "n n"], Float[Array, "n n"]]:
+    """The mass matrix, $\\partial^2\\Pi/\\partial Y^2$ and
+    $\\partial^2 R/\\partial\\dot Y^2$ at $(Y_{eq}, 0)$, each `(6 bodies, 6 bodies)`."""
+    M = jax.scipy.linalg.block_diag(*mass_matrix(model, y_eq))
+    K = model.stiffness_matrix(y_eq)
+    D = jax.hessian(lambda v: model.dissipation(y_eq, v.reshape(y_eq.shape)))(
+        jnp.zeros(y_eq.size)
+    )
+    return M, K, D

@@ -116,8 +116,7 @@ def load_distribution(
         raise ValueError(f"length must be a positive number of metres, got {length!r}")
     batch = wrenches.shape[:-2]
     m = wrenches.shape[-2]
-    split = jax.vmap(_split, in_axes=(0, 0, 0, None))
-    flat = split(
+    flat = _split_all(
         wrenches.reshape(-1, m, 6),
         points.reshape(-1, m, 3),
         center.reshape(-1, 3),
@@ -151,6 +150,10 @@ def _split(
         motion=motion.reshape(m, 6),
         internal=(f - motion).reshape(m, 6),
     )
+
+
+# one program over the batch, not op by op (this runs outside `jit`)
+_split_all = eqx.filter_jit(jax.vmap(_split, in_axes=(0, 0, 0, None)))
 
 
 def grasp_wrenches(traj: Trajectory) -> Float[Array, "times m 6"]:

@@ -1,10 +1,12 @@
 """Linearize Appendix B about an unloaded configuration into Appendix A."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
-from .._custom_types import ArrayInput, Validated
+from .._custom_types import ArrayInput, State, Validated
 from .._validation import as_float_array, is_concrete
 from .immobile import ImmobileModel
 from .mobile import MobileModel
@@ -33,8 +35,7 @@ def linearize_mobile(model: Validated[MobileModel], y0: ArrayInput) -> ImmobileM
     if not isinstance(model, MobileModel):
         raise ValueError(f"model must be a MobileModel, got {type(model).__name__}")
     y0 = jnp.asarray(as_float_array(y0, "y0", (model.n_bodies, 6)))
-    n = 6 * model.n_bodies
-    grad = jax.grad(model.potential)(y0)
+    grad, K, D = _derivatives(model, y0)
     if is_concrete(grad):
         scale = float(jnp.max(model.stiffness, initial=1.0)) * max(
             1.0, float(jnp.max(model.rest_length, initial=1.0))
@@ -46,9 +47,6 @@ def linearize_mobile(model: Validated[MobileModel], y0: ArrayInput) -> ImmobileM
                 f"force there reaches {worst:.3e}; use "
                 f"model.with_unloaded_state(y0) to make it the unloaded state"
             )
-    flat = y0.reshape(n)
-    K = jax.hessian(lambda q: model.potential(q.reshape(y0.shape)))(flat)
-    D = jax.hessian(lambda v: model.dissipation(y0, v.reshape(y0.shape)))(jnp.zeros(n))
     return ImmobileModel(
         model.bodies,
         0.5 * (K + K.T),
@@ -57,3 +55,16 @@ def linearize_mobile(model: Validated[MobileModel], y0: ArrayInput) -> ImmobileM
         gravity=model.gravity,
         convention=model.convention,
     )
+
+
+@eqx.filter_jit  # one program, not op by op (this runs outside `jit`)
+def _derivatives(
+    model: MobileModel, y0: State
+) -> tuple[State, Float[Array, "n n"], Float[Array, "n n"]]:
+    """$\\partial\\Pi/\\partial Y$, $\\partial^2\\Pi/\\partial Y^2$ and
+    $\\partial^2 R/\\partial\\dot Y^2$ at $(Y_0, 0)$, the last two flattened
+    `(6 bodies, 6 bodies)`."""
+    D = jax.hessian(lambda v: model.dissipation(y0, v.reshape(y0.shape)))(
+        jnp.zeros(y0.size)
+    )
+    return jax.grad(model.potential)(y0), model.stiffness_matrix(y0), D
