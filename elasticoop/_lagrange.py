@@ -30,7 +30,9 @@ the structure of the problem is used to keep the derivatives cheap:
   `restoring_forces` (per connection and gathered per body for `MobileModel`).
 """
 
-from collections.abc import Iterable
+import functools
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar, cast
 
 import equinox as eqx
 import jax
@@ -53,6 +55,7 @@ from ._models import AbstractElasticModel
 _COORDINATES = range(6)
 _BLOCKS = ((0, 1, 2), (3, 4, 5))  # translations, Euler angles
 
+_Term = TypeVar("_Term", bound=Callable[..., Any])
 # The entries `W[i, k]` of all blocks $W_i$, each `(bodies,)` (or a structural 0.0).
 _Blocks = dict[tuple[int, int], BodyCoordinate | float]
 
@@ -133,13 +136,27 @@ def _ldl_solve3(
     return x1, x2, x3
 
 
+def _compiled(term: _Term) -> _Term:
+    """`term(model, *arrays)` as one compiled program per model structure and shape.
+
+    Called outside `jit` (an analysis, a notebook cell), a term would otherwise run
+    op by op, compiling each operation on its first use; inside a trace the call is
+    inlined. The arrays are converted first, so that a nested list is data, not a
+    static argument of the program.
+    """
+    jitted = eqx.filter_jit(term)
+
+    @functools.wraps(term)
+    def compiled(model: AbstractElasticModel, *arrays: Any) -> Any:
+        return jitted(model, *(jnp.asarray(a) for a in arrays))
+
+    return cast(_Term, compiled)
+
+
+@_compiled
 def mass_matrix(model: AbstractElasticModel, y: StateLike) -> MassBlocks:
     """The diagonal blocks $W_i(Y_i)$ of the mass matrix, shape `(bodies, 6, 6)`."""
-    return _mass_matrix(model, jnp.asarray(y))
-
-
-@eqx.filter_jit
-def _mass_matrix(model: AbstractElasticModel, y: State) -> MassBlocks:
+    y = jnp.asarray(y)
     q = _coordinates(y)
     W = _mass_matrix_columns(model, q, _coordinates(jnp.zeros_like(y)), _COORDINATES)
     return jnp.stack(
@@ -147,6 +164,7 @@ def _mass_matrix(model: AbstractElasticModel, y: State) -> MassBlocks:
     )
 
 
+@_compiled
 def velocity_terms(model: AbstractElasticModel, y: StateLike, ydot: StateLike) -> State:
     """$\\dot W_i \\dot Y_i - \\partial T_i/\\partial Y_i$ per body, shape
     `(bodies, 6)` (the Coriolis and centrifugal terms of $w$)."""
@@ -155,12 +173,14 @@ def velocity_terms(model: AbstractElasticModel, y: StateLike, ydot: StateLike) -
     return jnp.stack(c, -1)
 
 
+@_compiled
 def elastic_forces(model: AbstractElasticModel, y: StateLike) -> State:
     """$\\partial \\Pi/\\partial Y$, shape `(bodies, 6)` (includes the
     $\\partial\\pi_a/\\partial Y$ term of Appendix B)."""
     return jax.grad(model.potential)(y)
 
 
+@_compiled
 def damping_forces(model: AbstractElasticModel, y: StateLike, ydot: StateLike) -> State:
     """$\\partial R/\\partial \\dot Y$, shape `(bodies, 6)`."""
     y = jnp.asarray(y)
@@ -196,6 +216,7 @@ def _entries(W: FactoredMassBlocks) -> _Blocks:
     return {(i, k): W.entry(i, k) for block in _BLOCKS for i in block for k in block}
 
 
+@_compiled
 def accelerations(
     model: AbstractElasticModel, y: StateLike, ydot: StateLike, applied: StateLike
 ) -> tuple[State, State]:
@@ -209,18 +230,7 @@ def accelerations(
     $\\partial R/\\partial\\dot Y$
     (whose product with $\\dot Y$ is the dissipated power $2R$).
     """
-    return _accelerations(
-        model, jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
-    )
-
-
-# Each public term is one compiled program (per model structure and shape): called
-# outside `jit` (an analysis, a notebook cell) it would otherwise run op by op,
-# compiling each op on its first use. Inside a trace the call is inlined.
-@eqx.filter_jit
-def _accelerations(
-    model: AbstractElasticModel, y: State, ydot: State, applied: State
-) -> tuple[State, State]:
+    y, ydot, applied = jnp.asarray(y), jnp.asarray(ydot), jnp.asarray(applied)
     W, b, damping = _balance(model, y, ydot, applied)
     return jnp.stack(W.solve(b), -1), damping
 
@@ -296,6 +306,7 @@ def constrained_accelerations(
     return jnp.stack(yddot, -1), damping, jnp.stack(reaction, -1)
 
 
+@_compiled
 def inverse_dynamics(
     model: AbstractElasticModel, y: StateLike, ydot: StateLike, yddot: StateLike
 ) -> State:
