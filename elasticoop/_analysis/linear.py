@@ -113,7 +113,7 @@ def linearize(
     )
 
 
-@eqx.filter_jit  # one program, not op by op (this runs outside `jit`)
+@eqx.filter_jit  # one program, not op by op, when called outside `jit`
 def _second_derivatives(
     model: AbstractElasticModel, y_eq: State
 ) -> tuple[Float[Array, "n n"], Float[Array, "n n"], Float[Array, "n n"]]:

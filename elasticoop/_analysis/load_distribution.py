@@ -152,7 +152,7 @@ def _split(
     )
 
 
-# one program over the batch, not op by op (this runs outside `jit`)
+# one program over the batch, not op by op, when called outside `jit`
 _split_all = eqx.filter_jit(jax.vmap(_split, in_axes=(0, 0, 0, None)))
 
 

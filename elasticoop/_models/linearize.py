@@ -57,7 +57,7 @@ def linearize_mobile(model: Validated[MobileModel], y0: ArrayInput) -> ImmobileM
     )
 
 
-@eqx.filter_jit  # one program, not op by op (this runs outside `jit`)
+@eqx.filter_jit  # one program, not op by op, when called outside `jit`
 def _derivatives(
     model: MobileModel, y0: State
 ) -> tuple[State, Float[Array, "n n"], Float[Array, "n n"]]:
