@@ -167,6 +167,13 @@ class PrescribedMotion(eqx.Module):
         (y, v), (_, a) = jax.jvp(position_velocity, (t,), (jnp.ones_like(t),))
         return y, v, a
 
+    def impose(self, t: TimeLike, y: State, ydot: State) -> tuple[State, State, State]:
+        """`y` and `ydot` with their prescribed entries replaced by the motion's at
+        `t`, and the motion's $\\ddot Y(t)$."""
+        y_p, ydot_p, yddot_p = self.state(t)
+        mask = self.mask
+        return jnp.where(mask, y_p, y), jnp.where(mask, ydot_p, ydot), yddot_p
+
     def check(self, n_bodies: int, t0: TimeLike, t1: TimeLike) -> None:
         """Validate against a model of `n_bodies` on the span `[t0, t1]`."""
         if self.mask.shape != (n_bodies, 6):

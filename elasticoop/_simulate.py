@@ -145,9 +145,7 @@ def simulate(
                 f"{type(prescribed).__name__}"
             )
         prescribed.check(n, ts[0], ts[-1])
-        y_p, ydot_p, _ = prescribed.state(ts[0])
-        y_init = jnp.where(prescribed.mask, y_p, y_init)
-        ydot_init = jnp.where(prescribed.mask, ydot_p, ydot_init)
+        y_init, ydot_init, _ = prescribed.impose(ts[0], y_init, ydot_init)
     force = check_force(forces, y_init, ydot_init, ts)
     if is_concrete(y_init):
         model.rotation.check_regular(y_init[:, 3:], options.gimbal_tol, "y_init")
@@ -233,13 +231,10 @@ def _driven(
     ydot: State,
 ) -> tuple[State, State, State, State, State, State]:
     """The state with the prescribed entries substituted, and its dynamics."""
-    mask = prescribed.mask
-    y_p, ydot_p, yddot_p = prescribed.state(t)
-    y = jnp.where(mask, y_p, y)
-    ydot = jnp.where(mask, ydot_p, ydot)
+    y, ydot, yddot_p = prescribed.impose(t, y, ydot)
     applied = _applied(model, force, t, y, ydot)
     yddot, damping, reaction = constrained_accelerations(
-        model, y, ydot, applied, mask, yddot_p
+        model, y, ydot, applied, prescribed.mask, yddot_p
     )
     return y, ydot, yddot, damping, reaction, applied
 
@@ -392,9 +387,7 @@ def _solve(
             sol.event_mask,
         )
         if prescribed is not None:
-            y_p, ydot_p, _ = prescribed.state(t_event)
-            y_event = jnp.where(prescribed.mask, y_p, y_event)
-            ydot_event = jnp.where(prescribed.mask, ydot_p, ydot_event)
+            y_event, ydot_event, _ = prescribed.impose(t_event, y_event, ydot_event)
         return t_event, y_event, ydot_event
 
     def step_end(t_start, y_start, t_stop, y_stop, ydot_stop):
