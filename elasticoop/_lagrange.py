@@ -24,8 +24,12 @@ the structure of the problem is used to keep the derivatives cheap:
 - With prescribed coordinates, the 3x3 blocks that hold one are solved by a
   closed-form $LDL^T$ factorisation (no pivoting: the blocks are positive definite
   away from gimbal lock).
-- The velocity terms are one Jacobian-vector product of $p$ along $\\dot Y$ minus
-  $\\partial T/\\partial Y$; no Hessian is formed.
+- The velocity terms of the dynamics are taken in the same structure
+  (`_structured_velocity_terms`: $L_\\omega^T$ times the gyroscopic part of
+  Euler's equations, with $\\dot L_\\omega\\dot{\\mathcal{A}}$ one forward-mode
+  product of the angular-velocity map). `velocity_terms` takes them from $T$
+  alone instead: one Jacobian-vector product of $p$ along $\\dot Y$ minus
+  $\\partial T/\\partial Y$, no Hessian formed; the tests compare the two.
 - $\\partial\\Pi/\\partial Y$ and $\\partial R/\\partial\\dot Y$ come from the model's
   `restoring_forces` (per connection and gathered per body for `MobileModel`).
 """
@@ -111,6 +115,45 @@ def _velocity_terms(
     _, momentum_rate = jax.jvp(lambda x: _momentum(model, x, v), (q,), (v,))
     dT_dq = jax.grad(_kinetic_energy, argnums=1)(model, q, v)
     return tuple(a - b for a, b in zip(momentum_rate, dT_dq))
+
+
+def _structured_velocity_terms(
+    model: AbstractElasticModel,
+    W: FactoredMassBlocks,
+    q: BodyCoordinates,
+    v: BodyCoordinates,
+) -> BodyCoordinates:
+    """The velocity terms in the structure of $T_i$ (what `_velocity_terms` gives,
+    with fewer operations; `tests/test_kinematics.py` compares the two).
+
+    The translational rows vanish ($T_i$ is $\\tfrac12 m_i|\\dot r_i|^2$ there). With
+    $\\omega = L_\\omega(\\mathcal{A})\\dot{\\mathcal{A}}$ the body-frame angular
+    velocity, Lagrange's equations of $\\tfrac12\\omega^T I\\omega$ in the angles
+    are $L_\\omega^T$ times Euler's equations, so the rotational rows are
+
+    $$w_{rot} = L_\\omega^T\\left(I\\,\\dot L_\\omega\\dot{\\mathcal{A}}
+        + \\omega\\times I\\omega\\right),$$
+
+    where $\\dot L_\\omega\\dot{\\mathcal{A}}$, the part of $\\dot\\omega$ without
+    $\\ddot{\\mathcal{A}}$, is one forward-mode product of the angular-velocity map
+    along $\\dot{\\mathcal{A}}$ (docs/model.md, section 4.1).
+    """
+    rates = v[3:6]
+    omega, omega_rate = jax.jvp(
+        lambda a: model.rotation.angular_velocity_components(a, rates),
+        (q[3:6],),
+        (rates,),
+    )
+    inertia = W.inertia
+    spin = tuple(inertia[k] * omega[k] for k in range(3))  # I omega
+    body = [
+        inertia[k] * omega_rate[k]
+        + omega[(k + 1) % 3] * spin[(k + 2) % 3]
+        - omega[(k + 2) % 3] * spin[(k + 1) % 3]
+        for k in range(3)
+    ]
+    zero = jnp.zeros_like(v[0])
+    return (zero, zero, zero, *W.rotational_transpose(tuple(body)))
 
 
 def _ldl_solve3(
@@ -206,7 +249,7 @@ def _balance(
         (inertia[:, 0], inertia[:, 1], inertia[:, 2]),
         model.rotation.angular_velocity_rows(q[3:6]),
     )
-    c = _velocity_terms(model, q, v)
+    c = _structured_velocity_terms(model, W, q, v)
     b = tuple(rhs[:, k] - c[k] for k in _COORDINATES)
     return W, b, damping
 

@@ -86,6 +86,14 @@ class FactoredMassBlocks(NamedTuple):
             )
         )
 
+    def rotational_transpose(self, g: BodyCoordinates) -> list[BodyCoordinate]:
+        """$L_\\omega^T g$ for a body-frame $g$ given as three arrays `(bodies,)`
+        (body-frame moments as generalized forces on the angles)."""
+        L = self.rows
+        out = [_sum(*(_times(L[r][c], g[r]) for r in range(3))) for c in range(3)]
+        # (never a structural 0.0: every column of an invertible L has an entry)
+        return cast(list[BodyCoordinate], out)
+
     def solve(self, b: BodyCoordinates) -> list[BodyCoordinate]:
         """$W^{-1} b$ for $b$ as six arrays `(bodies,)`: $b_{lin}/m$ and
         $L_\\omega^{-1} I^{-1} L_\\omega^{-T} b_{rot}$ (cofactors $C$ of $L_\\omega$:

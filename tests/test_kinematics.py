@@ -84,9 +84,13 @@ def test_mass_matrix_determinant_vanishes_only_at_singularity(convention):
 
 @pytest.mark.parametrize("convention", CONVENTIONS)
 def test_accelerations_solve_the_autodiff_mass_matrix(convention):
-    """The free dynamics solves with the blocks in the structure of T
-    (diag(m 1, L^T I L), inverted through L): the same W as the autodiff Hessian
-    of T (`mass_matrix`), and W yddot = G + F - w with that W to rounding."""
+    """The free dynamics assembles W yddot = G + F - w in the structure of T
+    (blocks diag(m 1, L^T I L) inverted through L; velocity terms
+    L^T (I Ldot a' + omega x I omega)) and the connections (per-connection
+    gradients gathered per body): the same W as the autodiff Hessian of T
+    (`mass_matrix`), the same w as the autodiff of T and of Pi and R over the
+    whole state (`velocity_terms`, `elastic_forces`, `damping_forces`), and the
+    accelerations solve W yddot = G + F - w with that W, all to rounding."""
     rng = np.random.default_rng(5)
     bodies, y = [], []
     for _ in range(4):
@@ -95,11 +99,24 @@ def test_accelerations_solve_the_autodiff_mass_matrix(convention):
         if convention == "rpy":  # pitch away from +-pi/2
             yi[4] = rng.uniform(-1.2, 1.2)
         y.append(yi)
-    model = eo.MobileModel(bodies, convention=convention)
+    connections = [
+        eo.Connection(i, j, rng.uniform(1.0, 9.0, 6), rng.uniform(0.1, 0.9, 6))
+        for i, j in ((0, 1), (0, 2), (1, 3))
+    ]
     y = jnp.asarray(np.array(y))
+    model = eo.MobileModel(bodies, connections, convention=convention)
+    model = model.with_unloaded_state(y + 0.05 * rng.normal(size=(4, 6)))
     ydot = jnp.asarray(rng.normal(size=(4, 6)))
     applied = jnp.asarray(rng.normal(size=(4, 6)))
     blocks, b, _ = _lagrange._balance(model, y, ydot, applied)
+    independent = (
+        model.gravity_forces()
+        + applied
+        - eo.velocity_terms(model, y, ydot)
+        - eo.elastic_forces(model, y)
+        - eo.damping_forces(model, y, ydot)
+    )
+    assert _rel(jnp.stack(b, -1), independent) < CLOSED_FORM_RTOL
     W = eo.mass_matrix(model, y)
     for i in range(6):
         for k in range(6):

@@ -1,5 +1,7 @@
 """Appendix B: the mobile unloaded state, pairwise springs with rest length."""
 
+import functools
+import operator
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -84,8 +86,8 @@ def _deflection(
     `(3,)` or a sequence of three arrays (many links at once)."""
     sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     ok = sq > 0
-    length = jnp.sqrt(jnp.where(ok, sq, 1.0))
-    scale = 1.0 - jnp.where(ok, rest_length / length, 0.0)
+    inverse_length = jax.lax.rsqrt(jnp.where(ok, sq, 1.0))
+    scale = 1.0 - jnp.where(ok, rest_length * inverse_length, 0.0)
     return scale * d[0], scale * d[1], scale * d[2]
 
 
@@ -271,56 +273,44 @@ class MobileModel(AbstractElasticModel):
         `(bodies, 6)`.
 
         Per connection, by autodiff of $\\Pi_{ij}$ and $R_{ij}$ with respect to the
-        first end's coordinates (all connections at once, coordinate by
-        coordinate); both depend on $Y_i - Y_j$ only, so the second end gets the
-        opposite. The per-body sums gather each body's connections from the
-        static connectivity (no scatter-add in the hot path).
+        first end's coordinates (`vmap` over the connections); both depend on
+        $Y_i - Y_j$ only, so the second end gets the opposite. The per-body sums
+        gather each body's connections from the static connectivity (no
+        scatter-add in the hot path).
         """
         n = self.n_bodies
         if not self.connectivity:
             zero = jnp.zeros_like(y)
             return zero, zero
-        pairs = np.asarray(self.connectivity, dtype=np.int32)
-        first, second = pairs[:, 0], pairs[:, 1]
-        # One gather of both ends' coordinates and rates, `(2P, 12)`.
-        P = len(pairs)
-        ends: Array | np.ndarray
-        ends = jnp.concatenate([y, ydot], axis=-1)[np.concatenate([first, second])]
-        yi = tuple(ends[:P, k] for k in range(6))
-        yj = tuple(ends[P:, k] for k in range(6))
-        vi = tuple(ends[:P, 6 + k] for k in range(6))
-        vj = tuple(ends[P:, 6 + k] for k in range(6))
+        yi, yj = self._ends(y)
+        vi, vj = self._ends(ydot)
 
         def potential(yi):
-            return jnp.sum(
-                connection_potential(
-                    self.stiffness, self.rest_length, self.rest_angles, yi, yj
-                )
+            per = jax.vmap(connection_potential)(
+                self.stiffness, self.rest_length, self.rest_angles, yi, yj
             )
+            return jnp.sum(per)
 
         def dissipation(vi):
-            return jnp.sum(
-                connection_dissipation(self.damping, self.rest_length, yi, yj, vi, vj)
+            per = jax.vmap(connection_dissipation)(
+                self.damping, self.rest_length, yi, yj, vi, vj
             )
+            return jnp.sum(per)
 
-        # 12 arrays (P,): dPi_ij/dY_i then dR_ij/dYdot_i, coordinate by coordinate.
-        per_connection = jax.grad(potential)(yi) + jax.grad(dissipation)(vi)
         index, sign = _incidence(self.connectivity, n)
-        if index.size <= _GATHER_OVERHEAD * (n + 2 * P):
-            if index.shape[1] <= _UNROLL:
-                per_body = [
-                    sum(g[index[:, s]] * sign[:, s] for s in range(index.shape[1]))
-                    for g in per_connection
-                ]
-            else:
-                per_body = [jnp.sum(g[index] * sign, axis=1) for g in per_connection]
-        else:
-            ends = np.concatenate([first, second])
-            per_body = [
-                jax.ops.segment_sum(jnp.concatenate([g, -g]), ends, num_segments=n)
-                for g in per_connection
-            ]
-        return jnp.stack(per_body[:6], axis=-1), jnp.stack(per_body[6:], axis=-1)
+        pairs = self.pairs
+
+        def per_body(g: Float[Array, "connections 6"]) -> State:
+            """The sum over each body's connections of +-`g` (+ at the first end)."""
+            if index.size > _GATHER_OVERHEAD * (n + 2 * len(pairs)):
+                ends = np.concatenate([pairs[:, 0], pairs[:, 1]])
+                return jax.ops.segment_sum(jnp.concatenate([g, -g]), ends, n)
+            if index.shape[1] > _UNROLL:
+                return jnp.sum(g[index] * sign[..., None], axis=1)
+            terms = [g[index[:, s]] * sign[:, s, None] for s in range(index.shape[1])]
+            return functools.reduce(operator.add, terms)
+
+        return per_body(jax.grad(potential)(yi)), per_body(jax.grad(dissipation)(vi))
 
     def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
         """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))` (it
