@@ -13,8 +13,6 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from .._body import RigidBody, stack_bodies
 from .._custom_types import (
     DofMatrix,
-    LinkCoordinate,
-    LinkCoordinates,
     Pairs,
     Scalar,
     State,
@@ -79,16 +77,15 @@ class Connection(eqx.Module):
         )
 
 
-def _deflection(
-    d: Vector3 | Sequence[LinkCoordinate], rest_length: LinkCoordinate
-) -> tuple[LinkCoordinate, LinkCoordinate, LinkCoordinate]:
-    """$\\delta = (1 - \\rho_0/|d|)\\, d$ component by component: `d` is an array
-    `(3,)` or a sequence of three arrays (many links at once)."""
-    sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+# The translational entries of a connection's 6-vector $Y_i - Y_j$.
+_TRANSLATION = np.array([True, True, True, False, False, False])
+
+
+def _deflection_scale(sq: Scalar, rest_length: Scalar) -> Scalar:
+    """$1 - \\rho_0/|d|$ from $|d|^2$, guarded at $|d| = 0$ (where it is 1)."""
     ok = sq > 0
     inverse_length = jax.lax.rsqrt(jnp.where(ok, sq, 1.0))
-    scale = 1.0 - jnp.where(ok, rest_length * inverse_length, 0.0)
-    return scale * d[0], scale * d[1], scale * d[2]
+    return 1.0 - jnp.where(ok, rest_length * inverse_length, 0.0)
 
 
 def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
@@ -98,56 +95,50 @@ def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
     there is guarded (no NaN, also in gradients) and `simulate` stops with an error
     before a link collapses. For $\\rho_0 = 0$ it is simply $d$, smooth everywhere.
     """
-    return jnp.stack(_deflection(d, rest_length))
+    return _deflection_scale(jnp.sum(d * d), rest_length) * d
+
+
+def _strain(dy: Vector6, rest_length: Scalar, rest_angles: Vector3) -> Vector6:
+    """$(\\delta, \\Delta\\mathcal{A} - \\Delta\\mathcal{A}_0)$ of one connection
+    from $\\Delta Y = Y_i - Y_j$, as one 6-vector (elementwise, with the
+    translational entries masked, so that its derivatives stay elementwise too)."""
+    sq = jnp.sum(jnp.where(_TRANSLATION, dy * dy, 0.0))
+    scale = jnp.where(_TRANSLATION, _deflection_scale(sq, rest_length), 1.0)
+    return scale * dy - jnp.concatenate([jnp.zeros(3, dy.dtype), rest_angles])
 
 
 def connection_potential(
-    stiffness: Float[Array, "*connections 6"],
-    rest_length: LinkCoordinate,
-    rest_angles: Float[Array, "*connections 3"],
-    yi: Vector6 | LinkCoordinates,
-    yj: Vector6 | LinkCoordinates,
-) -> LinkCoordinate:
+    stiffness: Float[Array, " 6"],
+    rest_length: Scalar,
+    rest_angles: Vector3,
+    yi: Vector6,
+    yj: Vector6,
+) -> Scalar:
     """$\\Pi_{ij} = \\tfrac12\\sum_k c^k \\delta_k^2
-    + \\tfrac12\\sum_a c^a (\\Delta\\mathcal{A}_a - \\Delta\\mathcal{A}_{0,a})^2$.
-
-    `yi`, `yj` are arrays `(6,)`, or tuples of six arrays (coordinate by
-    coordinate) for many connections at once, with `stiffness` `(P, 6)`,
-    `rest_length` `(P,)` and `rest_angles` `(P, 3)`."""
-    c = stiffness
-    delta = _deflection([yi[k] - yj[k] for k in range(3)], rest_length)
-    angle = [yi[3 + k] - yj[3 + k] - rest_angles[..., k] for k in range(3)]
-    energy = [
-        c[..., k] * delta[k] ** 2 + c[..., 3 + k] * angle[k] ** 2 for k in range(3)
-    ]
-    return 0.5 * (energy[0] + energy[1] + energy[2])
+    + \\tfrac12\\sum_a c^a (\\Delta\\mathcal{A}_a - \\Delta\\mathcal{A}_{0,a})^2$
+    of one connection (`jax.vmap` it for many)."""
+    strain = _strain(yi - yj, rest_length, rest_angles)
+    return 0.5 * jnp.sum(stiffness * strain * strain)
 
 
 def connection_dissipation(
-    damping: Float[Array, "*connections 6"],
-    rest_length: LinkCoordinate,
-    yi: Vector6 | LinkCoordinates,
-    yj: Vector6 | LinkCoordinates,
-    vi: Vector6 | LinkCoordinates,
-    vj: Vector6 | LinkCoordinates,
-) -> LinkCoordinate:
+    damping: Float[Array, " 6"],
+    rest_length: Scalar,
+    yi: Vector6,
+    yj: Vector6,
+    vi: Vector6,
+    vj: Vector6,
+) -> Scalar:
     """$R_{ij} = \\tfrac12 \\dot\\delta^T D^\\delta \\dot\\delta
     + \\tfrac12 \\Delta\\dot{\\mathcal{A}}^T D^{\\mathcal A} \\Delta\\dot{\\mathcal{A}}$
-    with $\\dot\\delta = \\mathcal{G}(d)\\,\\dot d$ the deflection rate: the Jacobian
-    $\\mathcal{G}$ of the deflection is applied by a forward-mode product.
-
-    Arguments as for `connection_potential` (arrays `(6,)` or coordinate
-    tuples)."""
-    b = damping
-    d = tuple(yi[k] - yj[k] for k in range(3))
-    d_rate = tuple(vi[k] - vj[k] for k in range(3))
-    _, delta_rate = jax.jvp(lambda x: _deflection(x, rest_length), (d,), (d_rate,))
-    angle_rate = [vi[3 + k] - vj[3 + k] for k in range(3)]
-    power = [
-        b[..., k] * delta_rate[k] ** 2 + b[..., 3 + k] * angle_rate[k] ** 2
-        for k in range(3)
-    ]
-    return 0.5 * (power[0] + power[1] + power[2])
+    of one connection, with $\\dot\\delta = \\mathcal{G}(d)\\,\\dot d$ the deflection
+    rate: the Jacobian $\\mathcal{G}$ of the deflection is applied by a
+    forward-mode product (of the strain, whose angular part has Jacobian 1)."""
+    rest_angles = jnp.zeros(3, yi.dtype)  # (constant: no part of the rate)
+    _, rate = jax.jvp(
+        lambda dy: _strain(dy, rest_length, rest_angles), (yi - yj,), (vi - vj,)
+    )
+    return 0.5 * jnp.sum(damping * rate * rate)
 
 
 def _incidence(
