@@ -33,9 +33,6 @@ Mask = Bool[ArrayLike, "bodies 6"]
 # coordinates, or the three angles).
 BodyCoordinate = Float[Array, "*bodies"]
 BodyCoordinates: TypeAlias = tuple[BodyCoordinate, ...]
-# The same per connection, for the connection energies of `MobileModel`.
-LinkCoordinate = Float[Array, "*connections"]
-LinkCoordinates: TypeAlias = tuple[LinkCoordinate, ...]
 # A time: a Python number or a 0-d array.
 TimeLike: TypeAlias = float | int | Real[Array, ""] | Real[np.ndarray, ""]
 # Input that a function converts and checks itself (`as_float_array`, with an error
