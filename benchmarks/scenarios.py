@@ -35,7 +35,9 @@ def stiff_scenario(n_output: int = 301):
 def vector_field(t, state, args):
     """The first-order system `simulate` integrates, $(\\dot Y, \\ddot Y)$, from
     the library's `accelerations` and the scenario's force (`args = (model,
-    force)`, force `None` or `f(t, y, ydot)` of shape `(m, 6)` or `(m + 1, 6)`)."""
+    force)`, force `None` or `f(t, y, ydot)` of shape `(m, 6)` or `(m + 1, 6)`),
+    on the pair `(Y, Y')` (`simulate` packs the same system, with the work and
+    the dissipated energy, into one vector)."""
     model, force = args
     y, ydot = state
     if force is None:
