@@ -244,20 +244,27 @@ class MobileModel(AbstractElasticModel):
     ) -> tuple[Float[Array, "connections 6"], Float[Array, "connections 6"]]:
         return y[self.pairs[:, 0]], y[self.pairs[:, 1]]
 
-    def potential(self, y: State) -> Scalar:
-        yi, yj = self._ends(y)
+    def _potential_of_ends(self, yi: State, yj: State) -> Scalar:
+        """$\\Pi$ from both ends' coordinates `(connections, 6)` of every link."""
         per = jax.vmap(connection_potential)(
             self.stiffness, self.rest_length, self.rest_angles, yi, yj
         )
         return jnp.sum(per)
 
-    def dissipation(self, y: State, ydot: State) -> Scalar:
-        yi, yj = self._ends(y)
-        vi, vj = self._ends(ydot)
+    def _dissipation_of_ends(
+        self, yi: State, yj: State, vi: State, vj: State
+    ) -> Scalar:
+        """$R$ from both ends' coordinates and rates `(connections, 6)`."""
         per = jax.vmap(connection_dissipation)(
             self.damping, self.rest_length, yi, yj, vi, vj
         )
         return jnp.sum(per)
+
+    def potential(self, y: State) -> Scalar:
+        return self._potential_of_ends(*self._ends(y))
+
+    def dissipation(self, y: State, ydot: State) -> Scalar:
+        return self._dissipation_of_ends(*self._ends(y), *self._ends(ydot))
 
     def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
         """$(\\partial\\Pi/\\partial Y, \\partial R/\\partial\\dot Y)$, each
@@ -275,19 +282,8 @@ class MobileModel(AbstractElasticModel):
             return zero, zero
         yi, yj = self._ends(y)
         vi, vj = self._ends(ydot)
-
-        def potential(yi):
-            per = jax.vmap(connection_potential)(
-                self.stiffness, self.rest_length, self.rest_angles, yi, yj
-            )
-            return jnp.sum(per)
-
-        def dissipation(vi):
-            per = jax.vmap(connection_dissipation)(
-                self.damping, self.rest_length, yi, yj, vi, vj
-            )
-            return jnp.sum(per)
-
+        elastic = jax.grad(self._potential_of_ends)(yi, yj)
+        damping = jax.grad(self._dissipation_of_ends, argnums=2)(yi, yj, vi, vj)
         index, sign = _incidence(self.connectivity, n)
         pairs = self.pairs
 
@@ -301,7 +297,7 @@ class MobileModel(AbstractElasticModel):
             terms = [g[index[:, s]] * sign[:, s, None] for s in range(index.shape[1])]
             return functools.reduce(operator.add, terms)
 
-        return per_body(jax.grad(potential)(yi)), per_body(jax.grad(dissipation)(vi))
+        return per_body(elastic), per_body(damping)
 
     def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
         """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))` (it
