@@ -5,9 +5,10 @@
 Problem: the 3-body MobileModel (object + 2 grasps, 2 connections), 2 s simulated,
 rtol 1e-8, atol 1e-10, Tsit5, grasp stiffness log-normal (12 scalars, 20 % scatter),
 constant lift; kept per sample: peak elastic force per connection and final object
-pose error (21 output times). For each batch size B the study has B samples,
-integrated `B / devices` at a time on each device (one `vmap` batch per device; the
-host's cores are exposed as devices, so both cores of a 2-core machine work).
+pose error (21 output times). For each batch size B the study has B samples, one
+chunk, integrated `min(DEFAULT_BATCH_WIDTH, B / devices)` at a time on each device
+(`vmap`; the host's cores are exposed as devices, so both cores of a 2-core machine
+work).
 
 Reported per B: trajectories per wall-second and simulated seconds per wall-second
 (after compilation, best of `repeats`), the compile time, and memory per sample
@@ -114,7 +115,8 @@ def jax_throughput(batch: int, repeats: int) -> dict:
     devices = jax.devices()
     n_dev = min(len(devices), batch)
     devices = devices[:n_dev]
-    width = -(-batch // n_dev)
+    # the library's default width, or fewer when the batch does not fill the devices
+    width = min(mc.DEFAULT_BATCH_WIDTH, -(-batch // n_dev))
     study = three_body_study(batch)
     run = lambda: mc.run_study(  # noqa: E731
         study, chunk_size=batch, batch_width=width, devices=devices, progress=False

@@ -405,6 +405,22 @@ def test_chunk_size_from_memory_budget(study):
         mc.chunk_size_for(study, 10_000, batch_width=64)
 
 
+def test_default_batch_width_fits_the_memory_budget(study):
+    # at most the samples; halved until one batch of every device fits the budget
+    assert mc.default_batch_width(study, 2**30) == N_SAMPLES
+    assert mc.default_batch_width(study, 2**30, n_devices=4) == N_SAMPLES
+    for budget, devices in ((2**20, 1), (2**20, 2), (400_000, 1), (100_000, 1)):
+        width = mc.default_batch_width(study, budget, devices)
+        halvings = [N_SAMPLES >> k for k in range(N_SAMPLES.bit_length())]
+        assert width in halvings
+        mc.chunk_size_for(study, budget, width, devices)  # fits
+        if width < N_SAMPLES:  # the width before the last halving does not
+            wider = halvings[halvings.index(width) - 1]
+            with pytest.raises(ValueError, match="memory_budget"):
+                mc.chunk_size_for(study, budget, wider, devices)
+    assert mc.default_batch_width(study, 10) == 1
+
+
 class _Device:
     """A device reporting `bytes_limit` (as GPUs do) or no memory figures (CPUs)."""
 

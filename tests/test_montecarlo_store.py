@@ -151,6 +151,17 @@ def test_inverse_cdf_is_part_of_the_fingerprint():
     assert differ == ["parameters['k']"]
 
 
+def test_a_resumed_store_keeps_its_batch_width(study, half_store, reference, tmp_path):
+    # started with WIDTH; resumed without a width (whose default, 8 samples here,
+    # differs) it keeps WIDTH and so gives the same values bit for bit
+    assert mc.default_batch_width(study, 2**30) == N_SAMPLES != WIDTH
+    store = _copy(half_store, tmp_path)
+    ran = []
+    ds = mc.run_study(study, store, progress=False, on_chunk=ran.append)
+    assert ran == [1] and ds.attrs["batch_width"] == WIDTH
+    _same(ds, reference)
+
+
 @pytest.mark.slow  # builds and compiles a study of its own
 def test_the_same_study_with_fresh_lambdas_resumes(half_store, reference, tmp_path):
     store = _copy(half_store, tmp_path)

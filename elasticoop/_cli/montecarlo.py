@@ -15,7 +15,6 @@ from .._io.study_summary import format_study_report, output_names, study_report
 from ..montecarlo import StoreError, StoreLockedError, open_study, run_study
 from ..montecarlo.distributed import is_first_process
 from ..montecarlo.execution import DEFAULT_BATCH_WIDTH
-from ..montecarlo.store import read_manifest
 from ._common import EXIT_OK, UserError, common_options, positive_int, say
 
 NAME = "montecarlo"
@@ -135,7 +134,7 @@ def run(args) -> int:
             ds = run_study(
                 study,
                 store,
-                batch_width=batch_width(args, store, study.n_samples),
+                batch_width=args.batch_width,
                 progress=not args.quiet,
                 on_chunk=keep_record,
             )
@@ -170,20 +169,6 @@ def start_processes(args) -> None:
         num_processes=args.processes,
         process_id=args.process_id,
     )
-
-
-def batch_width(args, store: pathlib.Path, n_samples: int) -> int:
-    """`--batch-width`, else the store's own (resuming), else the default (at most
-    the number of samples)."""
-    if args.batch_width is not None:
-        return args.batch_width
-    try:
-        manifest = read_manifest(store) if store.is_dir() else None
-    except StoreError as err:
-        raise UserError(str(err)) from err
-    if manifest is not None:
-        return int(manifest["batch_width"])
-    return min(DEFAULT_BATCH_WIDTH, n_samples)
 
 
 def _use_cache(stack: contextlib.ExitStack) -> None:

@@ -11,8 +11,10 @@ from .distributions import (
     Uniform as Uniform,
 )
 from .execution import (
+    DEFAULT_BATCH_WIDTH as DEFAULT_BATCH_WIDTH,
     INVALID_SAMPLE as INVALID_SAMPLE,
     chunk_size_for as chunk_size_for,
+    default_batch_width as default_batch_width,
     memory_budget_for as memory_budget_for,
     run_study as run_study,
 )

@@ -43,7 +43,12 @@ from .store import (
 )
 from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
 
-DEFAULT_BATCH_WIDTH = 32
+DEFAULT_BATCH_WIDTH = 256
+"""Samples integrated together on each device unless `run_study` is given a
+`batch_width` (at most the study's samples, halved until a batch fits the memory
+budget: `default_batch_width`). The fastest width on a CPU core for the 3-body study
+of `benchmarks/montecarlo.py`: 32 took twice as long per sample, 2048 1.3x as long
+(a `vmap`-ed loop runs until its slowest sample is done)."""
 DEFAULT_MEMORY_BUDGET = 2**30  # bytes, where the devices do not report their memory
 # Share of an accelerator's memory (the smallest of the devices) a chunk may use
 # per device when the devices report their memory (GPUs); the rest is left to
@@ -136,7 +141,7 @@ def chunk_size_for(
     `_WORK_FACTOR` times its trajectory plus `_WORK_FIXED` bytes, and every sample's
     record held three times (device result, host copy, file buffer).
     """
-    record = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(_template(study)))
+    record = _record_bytes(study)
     lanes = batch_width * n_devices
     in_flight = lanes * working_memory_per_sample(study)
     if in_flight + 3 * lanes * record > memory_budget:
@@ -149,6 +154,22 @@ def chunk_size_for(
     batches = (memory_budget - in_flight) // (3 * lanes * record)
     batches = min(batches, _MAX_BATCHES_PER_CHUNK, math.ceil(study.n_samples / lanes))
     return int(batches * lanes)
+
+
+def default_batch_width(study: Study, memory_budget: int, n_devices: int = 1) -> int:
+    """`DEFAULT_BATCH_WIDTH`, or `study.n_samples` when fewer, halved until one
+    batch of `width * n_devices` samples fits in `memory_budget` bytes (see
+    `chunk_size_for`); at least 1."""
+    per_sample = working_memory_per_sample(study) + 3 * _record_bytes(study)
+    width = min(DEFAULT_BATCH_WIDTH, study.n_samples)
+    while width > 1 and width * n_devices * per_sample > memory_budget:
+        width //= 2
+    return width
+
+
+def _record_bytes(study: Study) -> int:
+    """Bytes of one sample's record (its outputs, status and event time)."""
+    return sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(_template(study)))
 
 
 def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
@@ -204,7 +225,7 @@ def run_study(
     store: str | Path | None = None,
     *,
     chunk_size: int | None = None,
-    batch_width: int = DEFAULT_BATCH_WIDTH,
+    batch_width: int | None = None,
     memory_budget: int | None = None,
     devices=None,
     progress: bool = True,
@@ -224,7 +245,10 @@ def run_study(
     - `chunk_size`: samples per chunk (default: from `memory_budget`; a resumed
       store keeps its own).
     - `batch_width`: samples integrated together by `vmap` on each device. Results
-      depend on it at the level of floating-point rounding, so it is recorded.
+      depend on it at the level of floating-point rounding, so it is recorded, and
+      a resumed store keeps its own. Default: `DEFAULT_BATCH_WIDTH` (256), or the
+      number of samples when fewer, halved until one batch fits `memory_budget`
+      (`default_batch_width`).
     - `memory_budget`: bytes the chunk may use (sets the default `chunk_size`).
       Default: from the devices' memory (`memory_budget_for`): half of each
       GPU's memory, 1 GiB on CPUs.
@@ -248,7 +272,7 @@ def run_study(
     """
     if not isinstance(study, Study):
         raise ValueError(f"study must be a Study, got {type(study).__name__}")
-    if (
+    if batch_width is not None and (
         isinstance(batch_width, bool)
         or not isinstance(batch_width, int)
         or batch_width < 1
@@ -260,6 +284,8 @@ def run_study(
     mesh = Mesh(np.array(devices), ("samples",))
     with contextlib.ExitStack() as stack:
         if store is None:
+            if batch_width is None:
+                batch_width = default_batch_width(study, memory_budget, len(devices))
             chunk_size = _chunk_size(
                 study, None, None, chunk_size, memory_budget, batch_width, len(devices)
             )
@@ -276,9 +302,7 @@ def run_study(
                 len(devices),
                 trust_callables,
             )
-        records = _run_chunks(
-            study, store, manifest, done, mesh, batch_width, progress, on_chunk
-        )
+        records = _run_chunks(study, store, manifest, done, mesh, progress, on_chunk)
     if store is None:
         return to_dataset(concatenate(records), manifest)
     barrier("elasticoop-montecarlo-finished")
@@ -327,19 +351,28 @@ def _open_store(
                 raise StoreError(f"cannot use {path} as a study store: {err}") from None
             stack.enter_context(store_lock(path))
             existing = read_manifest(path)
+            if batch_width is None:
+                # a resumed store keeps its own
+                batch_width = (
+                    default_batch_width(study, memory_budget, n_devices)
+                    if existing is None
+                    else int(existing["batch_width"])
+                )
             chunk_size = _chunk_size(
                 study, path, existing, chunk_size, memory_budget, batch_width, n_devices
             )
             manifest = _manifest(study, chunk_size, batch_width)
             manifest = prepare(path, manifest, trust_callables)
         except Exception:
-            broadcast_from_first(np.zeros(2, np.int64))  # the others stop too
+            broadcast_from_first(np.zeros(3, np.int64))  # the others stop too
             raise
-        broadcast_from_first(np.array([1, chunk_size], np.int64))
+        broadcast_from_first(np.array([1, chunk_size, batch_width], np.int64))
         done = np.zeros(manifest["n_chunks"], dtype=bool)
         done[[int(c) for c in manifest["chunks"]]] = True
     else:
-        ok, chunk_size = broadcast_from_first(np.zeros(2, np.int64)).tolist()
+        ok, chunk_size, batch_width = broadcast_from_first(
+            np.zeros(3, np.int64)
+        ).tolist()
         if not ok:
             raise RuntimeError(
                 f"the first process could not open the study store {store} (see "
@@ -352,12 +385,11 @@ def _open_store(
     return manifest, done
 
 
-def _run_chunks(
-    study, store, manifest, done, mesh, batch_width, progress, on_chunk
-) -> list[dict]:
+def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[dict]:
     """Compute the chunks not `done`: stored (first process) when `store` is given,
     returned otherwise."""
     chunk_size, n_chunks = manifest["chunk_size"], manifest["n_chunks"]
+    batch_width = manifest["batch_width"]
     n_devices = mesh.devices.size
     lanes = batch_width * n_devices
     strata = lhs_strata(study)

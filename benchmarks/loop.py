@@ -1,0 +1,112 @@
+"""The integration loop's cost beyond the right-hand side, in a batch.
+
+    python benchmarks/loop.py [--quick] [--json out.json]
+
+Problem: the Monte Carlo study of `benchmarks/montecarlo.py` (3-body MobileModel,
+2 connections, 2 s, rtol 1e-8, atol 1e-10, Tsit5, 12 log-normal stiffness
+scalars), B = 256 samples (8 at smoke size) on one XLA device. Timed side by side in
+one process, best of 3 after compilation:
+
+- `solve`: `simulate` of every sample, `jax.vmap`-ed and jitted (what `run_study`
+  runs on a device; the whole `Trajectory` returned);
+- `rhs`: the vector field that `simulate` hands to diffrax (accelerations, work and
+  dissipation rates on the packed state), `vmap`-ed over the same per-sample models,
+  evaluated 6 times per step for the slowest sample's step count (a `vmap`-ed loop
+  runs until its last lane is done; Tsit5 evaluates 6 new stages per step), the
+  evaluations chained inside one compiled loop.
+
+`solve / rhs` is the loop's overhead factor: solver arithmetic, step-size control,
+stop conditions and saving, and what `vmap` adds to them.
+"""
+
+import sys
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _timing import interleaved_best_times  # noqa: E402
+from montecarlo import three_body_study  # noqa: E402
+
+import elasticoop as eo  # noqa: E402
+from elasticoop import montecarlo as mc  # noqa: E402
+from elasticoop._forces import check_force  # noqa: E402
+from elasticoop._simulate import _pack, _vector_field  # noqa: E402
+
+STAGES_PER_STEP = 6  # Tsit5: 7 stages, the first reused from the step before
+
+
+def run(quick: bool = False) -> dict:
+    batch = 8 if quick else 256
+    study = three_body_study(batch)
+    inputs = study.inputs
+    model = inputs.model
+    stiffness = jnp.asarray(mc.sample_parameters(study, np.arange(batch))["stiffness"])
+    y0, ydot0 = jnp.asarray(inputs.y_init), jnp.asarray(inputs.ydot_init)
+    ts = jnp.asarray(study.ts)
+    forces = jnp.asarray(inputs.forces.F)
+    ts = ts[:3] if quick else ts
+
+    def with_stiffness(k):
+        return eqx.tree_at(lambda m: m.stiffness, model, k)
+
+    @jax.jit
+    def solve(stiffness):
+        def one(k):
+            traj = eo.simulate(
+                with_stiffness(k),
+                y0,
+                ydot0,
+                ts,
+                forces=forces,
+                rtol=1e-8,
+                atol=1e-10,
+                throw=False,
+            )
+            return traj, traj.n_steps
+
+        return jax.vmap(one)(stiffness)
+
+    _, steps = solve(stiffness)
+    steps = np.asarray(steps)
+    n_evals = STAGES_PER_STEP * int(steps.max())
+    force = check_force(forces, y0, ydot0, ts)
+    x0 = _pack(y0, ydot0, jnp.zeros(()), jnp.zeros(()))
+    side = jnp.ones(model.n_bodies)
+
+    @jax.jit
+    def rhs(stiffness):
+        def one(k):
+            args = (with_stiffness(k), force, side, None)
+
+            def evaluate(_, x):
+                return x + 1e-9 * _vector_field(ts[1], x, args)
+
+            return jax.lax.fori_loop(0, n_evals, evaluate, x0)
+
+        return jax.vmap(one)(stiffness)
+
+    times = interleaved_best_times(
+        {"solve": (solve, (stiffness,)), "rhs": (rhs, (stiffness,))},
+        rounds=1 if quick else 3,
+    )
+    return {
+        "problem": f"3-body MobileModel (2 connections), {float(ts[-1]):g} s, rtol "
+        f"1e-8, Tsit5, {batch} samples vmapped on one device",
+        "steps_mean": float(steps.mean()),
+        "steps_max": int(steps.max()),
+        "solve_ms_per_sample": 1e3 * times["solve"] / batch,
+        "rhs_ms_per_sample": 1e3 * times["rhs"] / batch,
+        "solve_over_rhs": times["solve"] / times["rhs"],
+        "target": "solve_over_rhs <= 1.3",
+    }
+
+
+if __name__ == "__main__":
+    from _cli import main
+
+    main(run, __doc__)
