@@ -5,9 +5,6 @@ Importing elasticoop turns on JAX's 64-bit mode (`jax_enable_x64`): tolerances s
 as `rtol=1e-8` are meaningless in float32.
 """
 
-import ast
-import importlib
-import pathlib
 import typing
 
 import jax
@@ -33,6 +30,7 @@ from ._lagrange import (  # noqa: E402
     mass_matrix as mass_matrix,
     velocity_terms as velocity_terms,
 )
+from ._lazy import lazy_attributes as _lazy_attributes  # noqa: E402
 from ._models import (  # noqa: E402
     AbstractElasticModel as AbstractElasticModel,
     Connection as Connection,
@@ -133,39 +131,4 @@ if typing.TYPE_CHECKING:
     )
 
 
-def _lazy_names() -> dict[str, str]:
-    """Name -> module (relative to this package) of the imports under
-    `TYPE_CHECKING` above."""
-    tree = ast.parse(pathlib.Path(__file__).read_text(encoding="utf-8"))
-    block = next(
-        node
-        for node in tree.body
-        if isinstance(node, ast.If) and ast.unparse(node.test) == "typing.TYPE_CHECKING"
-    )
-    names = {}
-    for statement in block.body:
-        assert isinstance(statement, ast.ImportFrom)
-        module = "." * statement.level + (statement.module or "")
-        for alias in statement.names:
-            if module == ".":  # `from . import montecarlo`: the submodule itself
-                names[alias.name] = "." + alias.name
-            else:
-                names[alias.asname or alias.name] = module
-    return names
-
-
-_LAZY = _lazy_names()
-
-
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'elasticoop' has no attribute {name!r}")
-    imported = importlib.import_module(module, __name__)
-    value = imported if module == "." + name else getattr(imported, name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = _lazy_attributes(__name__, __file__)

@@ -13,6 +13,8 @@ import tomllib
 import grimp
 import pytest
 
+from elasticoop._lazy import lazy_names
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "elasticoop"
 
@@ -99,27 +101,39 @@ def test_every_imported_package_is_declared():
     assert imported <= declared, f"imported but not declared: {imported - declared}"
 
 
-def test_import_leaves_the_heavy_dependencies_until_used():
-    """`import elasticoop` (what a first `simulate` needs) does not import scipy,
-    pandas, xarray, matplotlib, pydantic or optax; each public name it defers
-    still resolves, to the same object as its defining module's."""
+def _heavy_modules_after(statement: str) -> list[str]:
     code = (
-        "import sys, elasticoop; "
+        f"import sys; {statement}; "
         "print(sorted(m for m in ('scipy', 'pandas', 'xarray', 'matplotlib', "
         "'pydantic', 'optax') if m in sys.modules))"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     )
-    assert out.stdout.strip() == "[]"
-    import elasticoop
+    return eval(out.stdout.strip())
 
-    deferred = elasticoop._LAZY
-    assert {"static_equilibrium", "identify", "plot_energy", "montecarlo"} <= set(
-        deferred
-    )
-    for name, module in deferred.items():
-        value = getattr(elasticoop, name)
-        defining = importlib.import_module(module, "elasticoop")
-        assert value is (defining if module == f".{name}" else getattr(defining, name))
-        assert name in dir(elasticoop)
+
+@pytest.mark.parametrize("package", ["elasticoop", "elasticoop._config"])
+def test_import_leaves_the_heavy_dependencies_until_used(package):
+    """`import elasticoop` (what a first `simulate` needs) does not import scipy,
+    pandas, xarray, matplotlib, pydantic or optax, and loading the default scenario
+    adds only pydantic (its file's validation); each name a package defers still
+    resolves, to the same object as its defining module's."""
+    assert _heavy_modules_after("import elasticoop") == []
+    assert _heavy_modules_after("from elasticoop import default_scenario") == [
+        "pydantic"
+    ]
+    module = importlib.import_module(package)
+    deferred = lazy_names(module.__file__)
+    expected = {
+        "elasticoop": {"static_equilibrium", "identify", "plot_energy", "montecarlo"},
+        "elasticoop._config": {"load_scenario", "load_study", "load_experiment"},
+    }[package]
+    assert expected <= set(deferred)
+    for name, where in deferred.items():
+        value = getattr(module, name)
+        defining = importlib.import_module(where, package)
+        assert value is (defining if where == f".{name}" else getattr(defining, name))
+        assert name in dir(module)
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        module.not_a_name  # noqa: B018

@@ -2,7 +2,6 @@
 
 import equinox as eqx
 import numpy as np
-import scipy.linalg
 from jaxtyping import Float, Inexact
 
 from .linear import LinearModel
@@ -62,6 +61,8 @@ def modes(linear: LinearModel, rigid_tol: float = 1e-9) -> Modes:
     `rigid_tol`: eigenvalues $\\omega^2$ below `rigid_tol` times the largest are
     rigid-body modes ($\\omega = 0$).
     """
+    import scipy.linalg  # here: loading a scenario imports this module, not SciPy
+
     M, C, K = (np.asarray(x) for x in (linear.M, linear.C, linear.K))
     omega2, shapes = scipy.linalg.eigh(K, M)
     top = max(float(np.max(np.abs(omega2))), np.finfo(float).tiny)

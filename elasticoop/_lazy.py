@@ -1,0 +1,58 @@
+"""Names imported on first use (PEP 562).
+
+A package lists its lazily imported names once, as imports under
+`typing.TYPE_CHECKING` (which type checkers and the documentation read);
+`lazy_attributes` turns that list into the package's `__getattr__` and `__dir__`, so
+that importing the package does not import what those names need.
+"""
+
+import ast
+import importlib
+import pathlib
+import sys
+from collections.abc import Callable
+from typing import Any
+
+
+def lazy_names(init_file: str) -> dict[str, str]:
+    """Name -> module (relative to the package) of the imports under
+    `typing.TYPE_CHECKING` in the package's `__init__.py`; a submodule imported as
+    `from . import name` maps to `.name`."""
+    tree = ast.parse(pathlib.Path(init_file).read_text(encoding="utf-8"))
+    block = next(
+        node
+        for node in tree.body
+        if isinstance(node, ast.If) and ast.unparse(node.test) == "typing.TYPE_CHECKING"
+    )
+    names = {}
+    for statement in block.body:
+        assert isinstance(statement, ast.ImportFrom)
+        module = "." * statement.level + (statement.module or "")
+        for alias in statement.names:
+            if module == ".":  # `from . import montecarlo`: the submodule itself
+                names[alias.name] = "." + alias.name
+            else:
+                names[alias.asname or alias.name] = module
+    return names
+
+
+def lazy_attributes(
+    package: str, init_file: str
+) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
+    """`(__getattr__, __dir__)` for `package`: a name of `lazy_names` is imported
+    on first access and then kept in the package's namespace."""
+    lazy = lazy_names(init_file)
+
+    def __getattr__(name: str) -> Any:
+        module = lazy.get(name)
+        if module is None:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        imported = importlib.import_module(module, package)
+        value = imported if module == "." + name else getattr(imported, name)
+        setattr(sys.modules[package], name, value)
+        return value
+
+    def __dir__() -> list[str]:
+        return sorted(set(vars(sys.modules[package])) | set(lazy))
+
+    return __getattr__, __dir__
