@@ -6,9 +6,9 @@ Problem: the 3-body MobileModel (object + 2 grasps, 2 connections), 2 s simulate
 rtol 1e-8, atol 1e-10, Tsit5, grasp stiffness log-normal (12 scalars, 20 % scatter),
 constant lift; kept per sample: peak elastic force per connection and final object
 pose error (21 output times). For each batch size B the study has B samples, one
-chunk, integrated `min(DEFAULT_BATCH_WIDTH, B / devices)` at a time on each device
-(`vmap`; the host's cores are exposed as devices, so both cores of a 2-core machine
-work).
+chunk, integrated `run_study`'s default width (`default_batch_width`: 256, or
+`B / devices` when fewer) at a time on each device (`vmap`; the host's cores are
+exposed as devices, so both cores of a 2-core machine work).
 
 Reported per B: trajectories per wall-second and simulated seconds per wall-second
 (after compilation, best of `repeats`), the compile time, and memory per sample
@@ -115,9 +115,9 @@ def jax_throughput(batch: int, repeats: int) -> dict:
     devices = jax.devices()
     n_dev = min(len(devices), batch)
     devices = devices[:n_dev]
-    # the library's default width, or fewer when the batch does not fill the devices
-    width = min(mc.DEFAULT_BATCH_WIDTH, -(-batch // n_dev))
     study = three_body_study(batch)
+    # run_study's default width (256, or fewer when the batch does not fill the devices)
+    width = mc.default_batch_width(study, mc.memory_budget_for(devices), n_dev)
     run = lambda: mc.run_study(  # noqa: E731
         study, chunk_size=batch, batch_width=width, devices=devices, progress=False
     )

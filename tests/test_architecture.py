@@ -113,16 +113,20 @@ def _heavy_modules_after(statement: str) -> list[str]:
     return eval(out.stdout.strip())
 
 
-@pytest.mark.parametrize("package", ["elasticoop", "elasticoop._config"])
-def test_import_leaves_the_heavy_dependencies_until_used(package):
+def test_import_leaves_the_heavy_dependencies_until_used():
     """`import elasticoop` (what a first `simulate` needs) does not import scipy,
-    pandas, xarray, matplotlib, pydantic or optax, and loading the default scenario
-    adds only pydantic (its file's validation); each name a package defers still
-    resolves, to the same object as its defining module's."""
+    pandas, xarray, matplotlib, pydantic or optax, and importing `default_scenario`
+    adds only pydantic (the scenario file's validation)."""
     assert _heavy_modules_after("import elasticoop") == []
     assert _heavy_modules_after("from elasticoop import default_scenario") == [
         "pydantic"
     ]
+
+
+@pytest.mark.parametrize("package", ["elasticoop", "elasticoop._config"])
+def test_deferred_names_resolve(package):
+    """Each name a package defers resolves, to the same object as its defining
+    module's, and is listed by `dir`."""
     module = importlib.import_module(package)
     deferred = lazy_names(module.__file__)
     expected = {

@@ -151,6 +151,16 @@ def test_chunk_size_does_not_change_results(study, results):
     xr.testing.assert_identical(results.drop_attrs(), other.drop_attrs())
 
 
+def test_default_batch_width_follows_the_chunk_size(study, results):
+    # no batch_width: a chunk of BATCH_WIDTH samples on one device is integrated
+    # BATCH_WIDTH at a time (not padded to DEFAULT_BATCH_WIDTH), so the values are
+    # those of an explicit BATCH_WIDTH bit for bit
+    assert len(jax.devices()) == 1
+    ds = mc.run_study(study, chunk_size=BATCH_WIDTH, progress=False)
+    assert ds.attrs["batch_width"] == BATCH_WIDTH
+    xr.testing.assert_identical(results.drop_attrs(), ds.drop_attrs())
+
+
 def test_studies_differing_in_values_share_one_compilation(study, results):
     """A Study is a pytree: its arrays (model, state, forces, times, key) are traced
     and its structure static, so a study that differs from another only in values
@@ -405,16 +415,25 @@ def test_chunk_size_from_memory_budget(study):
         mc.chunk_size_for(study, 10_000, batch_width=64)
 
 
-def test_default_batch_width_fits_the_memory_budget(study):
-    # at most the samples; halved until one batch of every device fits the budget
+def test_default_batch_width_fills_the_devices_and_fits_the_memory_budget(study):
+    # at most DEFAULT_BATCH_WIDTH; fewer when the samples (or one chunk) do not fill
+    # every device; halved until one batch of every device fits the budget
     assert mc.default_batch_width(study, 2**30) == N_SAMPLES
-    assert mc.default_batch_width(study, 2**30, n_devices=4) == N_SAMPLES
+    assert mc.default_batch_width(study, 2**30, n_devices=4) == N_SAMPLES // 4
+    assert mc.default_batch_width(study, 2**30, n_devices=5) == 5  # ceil(24 / 5)
+    assert mc.default_batch_width(study, 2**30, chunk_size=8) == 8
+    assert mc.default_batch_width(study, 2**30, n_devices=2, chunk_size=100) == 12
+    many = _study(n_samples=2 * mc.DEFAULT_BATCH_WIDTH + 88)
+    assert mc.default_batch_width(many, 2**30) == mc.DEFAULT_BATCH_WIDTH
+    assert mc.default_batch_width(many, 2**30, n_devices=2) == mc.DEFAULT_BATCH_WIDTH
+    assert mc.default_batch_width(many, 2**30, n_devices=4) == 150
     for budget, devices in ((2**20, 1), (2**20, 2), (400_000, 1), (100_000, 1)):
         width = mc.default_batch_width(study, budget, devices)
-        halvings = [N_SAMPLES >> k for k in range(N_SAMPLES.bit_length())]
+        start = -(-N_SAMPLES // devices)
+        halvings = [start >> k for k in range(start.bit_length())]
         assert width in halvings
         mc.chunk_size_for(study, budget, width, devices)  # fits
-        if width < N_SAMPLES:  # the width before the last halving does not
+        if width < start:  # the width before the last halving does not
             wider = halvings[halvings.index(width) - 1]
             with pytest.raises(ValueError, match="memory_budget"):
                 mc.chunk_size_for(study, budget, wider, devices)

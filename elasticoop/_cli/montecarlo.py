@@ -70,7 +70,8 @@ def register(subparsers) -> None:
         type=positive_int,
         metavar="N",
         help=f"samples integrated together per device (default {DEFAULT_BATCH_WIDTH}"
-        ", or the number of samples when fewer; a resumed store keeps its own)",
+        ", or fewer when the samples do not fill every device, halved until a batch "
+        "fits the memory budget; a resumed store keeps its own)",
     )
     distributed = parser.add_argument_group(
         "several processes (jax.distributed; every process runs the same command, "

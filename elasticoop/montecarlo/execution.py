@@ -46,9 +46,10 @@ from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
 DEFAULT_BATCH_WIDTH = 256
 """Samples integrated together on each device unless `run_study` is given a
 `batch_width` (at most the study's samples, halved until a batch fits the memory
-budget: `default_batch_width`). The fastest width on a CPU core for the 3-body study
-of `benchmarks/montecarlo.py`: 32 took twice as long per sample, 2048 1.3x as long
-(a `vmap`-ed loop runs until its slowest sample is done)."""
+budget: `default_batch_width`). The fastest width on the 2-core CPU (one XLA device
+per core) for the 3-body study of `benchmarks/montecarlo.py`: 32 took twice as long
+per sample, 2048 1.3x as long (a `vmap`-ed loop runs until its slowest sample is
+done)."""
 DEFAULT_MEMORY_BUDGET = 2**30  # bytes, where the devices do not report their memory
 # Share of an accelerator's memory (the smallest of the devices) a chunk may use
 # per device when the devices report their memory (GPUs); the rest is left to
@@ -148,20 +149,33 @@ def chunk_size_for(
         raise ValueError(
             f"memory_budget = {memory_budget} bytes is too small for batch_width = "
             f"{batch_width} on {n_devices} device(s): one batch needs about "
-            f"{in_flight + 3 * lanes * record} bytes; lower batch_width or the "
-            f"number of output times"
+            f"{in_flight + 3 * lanes * record} bytes; raise memory_budget, or lower "
+            f"batch_width or the number of output times"
         )
     batches = (memory_budget - in_flight) // (3 * lanes * record)
     batches = min(batches, _MAX_BATCHES_PER_CHUNK, math.ceil(study.n_samples / lanes))
     return int(batches * lanes)
 
 
-def default_batch_width(study: Study, memory_budget: int, n_devices: int = 1) -> int:
-    """`DEFAULT_BATCH_WIDTH`, or `study.n_samples` when fewer, halved until one
-    batch of `width * n_devices` samples fits in `memory_budget` bytes (see
-    `chunk_size_for`); at least 1."""
+def default_batch_width(
+    study: Study,
+    memory_budget: int,
+    n_devices: int = 1,
+    chunk_size: int | None = None,
+) -> int:
+    """The samples each device integrates at once when `run_study` is given no
+    `batch_width`: `DEFAULT_BATCH_WIDTH`, or fewer when the study (or one chunk of
+    `chunk_size` samples) does not fill every device (its samples divided by
+    `n_devices`, rounded up), halved until one batch of `width * n_devices`
+    samples fits in `memory_budget` bytes (see `chunk_size_for`); at least 1.
+
+    Results depend on the width at the level of rounding, so with this default
+    they can differ at that level between runs on different numbers of devices;
+    pass `batch_width` to `run_study` to rule that out (a store keeps its own).
+    """
+    samples = min(study.n_samples, chunk_size or study.n_samples)
     per_sample = working_memory_per_sample(study) + 3 * _record_bytes(study)
-    width = min(DEFAULT_BATCH_WIDTH, study.n_samples)
+    width = min(DEFAULT_BATCH_WIDTH, math.ceil(samples / n_devices))
     while width > 1 and width * n_devices * per_sample > memory_budget:
         width //= 2
     return width
@@ -246,9 +260,9 @@ def run_study(
       store keeps its own).
     - `batch_width`: samples integrated together by `vmap` on each device. Results
       depend on it at the level of floating-point rounding, so it is recorded, and
-      a resumed store keeps its own. Default: `DEFAULT_BATCH_WIDTH` (256), or the
-      number of samples when fewer, halved until one batch fits `memory_budget`
-      (`default_batch_width`).
+      a resumed store keeps its own. Default: `DEFAULT_BATCH_WIDTH` (256), or fewer
+      when the samples (or `chunk_size`) do not fill every device, halved until
+      one batch fits `memory_budget` (`default_batch_width`).
     - `memory_budget`: bytes the chunk may use (sets the default `chunk_size`).
       Default: from the devices' memory (`memory_budget_for`): half of each
       GPU's memory, 1 GiB on CPUs.
@@ -272,12 +286,11 @@ def run_study(
     """
     if not isinstance(study, Study):
         raise ValueError(f"study must be a Study, got {type(study).__name__}")
-    if batch_width is not None and (
-        isinstance(batch_width, bool)
-        or not isinstance(batch_width, int)
-        or batch_width < 1
-    ):
-        raise ValueError(f"batch_width must be a positive integer, got {batch_width!r}")
+    for name, value in (("batch_width", batch_width), ("chunk_size", chunk_size)):
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, int) or value < 1
+        ):
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
     devices = list(jax.devices() if devices is None else devices)
     if memory_budget is None:
         memory_budget = memory_budget_for(devices)
@@ -285,7 +298,9 @@ def run_study(
     with contextlib.ExitStack() as stack:
         if store is None:
             if batch_width is None:
-                batch_width = default_batch_width(study, memory_budget, len(devices))
+                batch_width = default_batch_width(
+                    study, memory_budget, len(devices), chunk_size
+                )
             chunk_size = _chunk_size(
                 study, None, None, chunk_size, memory_budget, batch_width, len(devices)
             )
@@ -321,13 +336,7 @@ def _chunk_size(
         chunk_size = existing["chunk_size"]
     elif chunk_size is None:
         chunk_size = chunk_size_for(study, memory_budget, batch_width, n_devices)
-    if (
-        isinstance(chunk_size, bool)
-        or not isinstance(chunk_size, int)
-        or chunk_size < 1
-    ):
-        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
-    return chunk_size
+    return int(chunk_size)
 
 
 def _open_store(
@@ -354,7 +363,7 @@ def _open_store(
             if batch_width is None:
                 # a resumed store keeps its own
                 batch_width = (
-                    default_batch_width(study, memory_budget, n_devices)
+                    default_batch_width(study, memory_budget, n_devices, chunk_size)
                     if existing is None
                     else int(existing["batch_width"])
                 )
