@@ -110,7 +110,7 @@ def _heavy_modules_after(statement: str) -> list[str]:
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     )
-    return eval(out.stdout.strip())
+    return ast.literal_eval(out.stdout.strip())
 
 
 def test_import_leaves_the_heavy_dependencies_until_used():

@@ -45,11 +45,11 @@ from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
 
 DEFAULT_BATCH_WIDTH = 256
 """Samples integrated together on each device unless `run_study` is given a
-`batch_width` (at most the study's samples, halved until a batch fits the memory
-budget: `default_batch_width`). The fastest width on the 2-core CPU (one XLA device
-per core) for the 3-body study of `benchmarks/montecarlo.py`: 32 took twice as long
-per sample, 2048 1.3x as long (a `vmap`-ed loop runs until its slowest sample is
-done)."""
+`batch_width` (fewer when the samples do not fill every device, and halved until a
+batch fits the memory budget: `default_batch_width`). The fastest width on the 2-core
+CPU (one XLA device per core) for the 3-body study of `benchmarks/montecarlo.py`: 32
+took twice as long per sample, 2048 1.3x as long (a `vmap`-ed loop runs until its
+slowest sample is done)."""
 DEFAULT_MEMORY_BUDGET = 2**30  # bytes, where the devices do not report their memory
 # Share of an accelerator's memory (the smallest of the devices) a chunk may use
 # per device when the devices report their memory (GPUs); the rest is left to
@@ -145,11 +145,12 @@ def chunk_size_for(
     record = _record_bytes(study)
     lanes = batch_width * n_devices
     in_flight = lanes * working_memory_per_sample(study)
-    if in_flight + 3 * lanes * record > memory_budget:
+    needed = _batch_bytes(study, lanes)
+    if needed > memory_budget:
         raise ValueError(
             f"memory_budget = {memory_budget} bytes is too small for batch_width = "
             f"{batch_width} on {n_devices} device(s): one batch needs about "
-            f"{in_flight + 3 * lanes * record} bytes; raise memory_budget, or lower "
+            f"{needed} bytes; raise memory_budget, or lower "
             f"batch_width or the number of output times"
         )
     batches = (memory_budget - in_flight) // (3 * lanes * record)
@@ -174,9 +175,8 @@ def default_batch_width(
     pass `batch_width` to `run_study` to rule that out (a store keeps its own).
     """
     samples = min(study.n_samples, chunk_size or study.n_samples)
-    per_sample = working_memory_per_sample(study) + 3 * _record_bytes(study)
     width = min(DEFAULT_BATCH_WIDTH, math.ceil(samples / n_devices))
-    while width > 1 and width * n_devices * per_sample > memory_budget:
+    while width > 1 and _batch_bytes(study, width * n_devices) > memory_budget:
         width //= 2
     return width
 
@@ -184,6 +184,12 @@ def default_batch_width(
 def _record_bytes(study: Study) -> int:
     """Bytes of one sample's record (its outputs, status and event time)."""
     return sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(_template(study)))
+
+
+def _batch_bytes(study: Study, lanes: int) -> int:
+    """Memory of one batch of `lanes` samples in flight: each sample's working
+    memory and its record held three times (see `chunk_size_for`)."""
+    return lanes * (working_memory_per_sample(study) + 3 * _record_bytes(study))
 
 
 def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
