@@ -85,7 +85,7 @@ def run(quick: bool = False) -> dict:
     @jax.jit
     def rhs(stiffness):
         def one(k):
-            args = (with_stiffness(k), force, side, None)
+            args = (with_stiffness(k), force, side, None, ts[-1])
 
             def evaluate(_, x):
                 return x + 1e-9 * _vector_field(ts[1], x, args)

@@ -26,6 +26,7 @@ from ._forces import (
     pad_to_bodies,
     sampled_interval,
 )
+from ._integration import integrate, result_code
 from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
@@ -41,9 +42,13 @@ from ._validation import as_float_array, check_times, is_concrete
 # which halves the cost of a step of one trajectory of the default scenario.
 _ODEState = Float[Array, " state"]
 # `args` of the vector field: model, force, the sign of each body's regularity at the
-# start, and the prescribed motion.
+# start, the prescribed motion, and the end of the run.
 _Args = tuple[
-    AbstractElasticModel, AbstractForce | None, BodyScalars, PrescribedMotion | None
+    AbstractElasticModel,
+    AbstractForce | None,
+    BodyScalars,
+    PrescribedMotion | None,
+    Scalar,
 ]
 
 
@@ -76,6 +81,7 @@ def simulate(
     link_tol: float = LINK_TOL,
     prescribed: Validated[PrescribedMotion | None] = None,
     progress_meter: diffrax.AbstractProgressMeter | None = None,
+    batch_loop: bool = False,
 ) -> Trajectory:
     """Integrate $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$ from `ts[0]` to `ts[-1]`.
 
@@ -109,6 +115,11 @@ def simulate(
       that realise the prescribed motion, and `Trajectory.work` includes their work.
     - `progress_meter`: a diffrax progress meter, e.g.
       `diffrax.TqdmProgressMeter()` for a progress bar on a long run (default none).
+    - `batch_loop`: under `jax.vmap`, integrate the whole batch in one loop, each
+      element with its own steps, instead of `vmap`-ing diffrax's loop: faster
+      (1.6x per trajectory in `benchmarks/loop.py`), the same steps and results to
+      rounding, but not differentiable (forward or reverse). Explicit Runge-Kutta
+      solvers without a progress meter; otherwise ignored. `run_study` uses it.
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces (`event_time`, where a run stopped
@@ -169,6 +180,7 @@ def simulate(
         kw["link_tol"],
         prescribed,
         diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
+        batch_loop,
     )
     if throw is False:
         return traj
@@ -225,7 +237,7 @@ def _unpack(x: Float[Array, "*times state"]) -> tuple[Array, Array, Array, Array
 # the same (XLA inlines the call).
 @eqx.filter_jit
 def _vector_field(t: TimeLike, state: _ODEState, args: _Args) -> _ODEState:
-    model, force, _, prescribed = args
+    model, force, _, prescribed, _ = args
     y, ydot, _, _ = _unpack(state)
     if prescribed is None:
         applied = _applied(model, force, t, y, ydot)
@@ -255,8 +267,8 @@ def _driven(
     return y, ydot, yddot, damping, reaction, applied
 
 
-def _of_state(condition: Callable, t: TimeLike, state: _ODEState, args: _Args, **_):
-    """A stop condition of $Y$ as diffrax calls it: of the ODE state."""
+def _of_state(condition: Callable, t: TimeLike, state: _ODEState, args: _Args):
+    """A stop condition of $Y$ as a condition of the ODE state."""
     return condition(t, _unpack(state)[0], args)
 
 
@@ -290,6 +302,7 @@ def _solve(
     link_tol: float,
     prescribed: PrescribedMotion | None,
     progress_meter: diffrax.AbstractProgressMeter,
+    batch_loop: bool = False,
 ) -> Trajectory:
     # Starts that are not simulated (only possible when traced; concrete ones are
     # refused by `simulate`): NaN or inf in the initial state, a start at the
@@ -329,17 +342,13 @@ def _solve(
     if interval is not None:
         # The run stops where the samples end, if that is before ts[-1] (like the
         # others, this event fires where its value falls to zero from above).
-        covered = ts[-1] <= interval[1]
-
         def samples_end(t, y, args):
-            return jnp.where(covered, 1.0, interval[1] - t)
+            end = sampled_interval(args[1])[1]
+            return jnp.where(args[4] <= end, 1.0, end - t)
 
         cond_fns["samples_end"] = samples_end
-    # No root finder: diffrax ends the solve at the end of the step in which a
-    # condition changed sign, and `locate_event` finds the crossing in that step.
-    event = diffrax.Event(
-        [partial(_of_state, fn) for fn in cond_fns.values()], direction=False
-    )
+    # No root finder: the solve ends at the end of the step in which a condition
+    # changed sign, and `locate_event` finds the crossing in that step.
     controller: diffrax.AbstractAdaptiveStepSizeController
     controller = diffrax.PIDController(rtol=rtol, atol=atol)
     jump_ts = jump_times(force)
@@ -348,22 +357,20 @@ def _solve(
     resolution = jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(ts[0]), jnp.abs(ts[-1]))
     controller = StopFailedSteps(controller, MIN_STEP_ULPS * resolution, halt)
     zero = jnp.zeros((), dtype=y_init.dtype)
-    args = (model, force, side, prescribed)
-    sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(_vector_field),
+    args = (model, force, side, prescribed, ts[-1])
+    sol = integrate(
+        _vector_field,
         solver,
-        t0=ts[0],
-        t1=ts[-1],
+        _pack(y_start, ydot_start, zero, zero),
+        args,
+        ts,
+        controller,
+        [partial(_of_state, fn) for fn in cond_fns.values()],
+        max_steps,
         dt0=dt0,
-        y0=_pack(y_start, ydot_start, zero, zero),
-        args=args,
-        saveat=diffrax.SaveAt(ts=ts, t1=True, controller_state=True),
-        stepsize_controller=controller,
         adjoint=adjoint,
-        event=event,
-        max_steps=max_steps,
-        throw=False,
         progress_meter=progress_meter,
+        batch_loop=batch_loop,
     )
     y_all, ydot_all, work, dissipated = _unpack(sol.ys)
     reaction = None
@@ -384,13 +391,13 @@ def _solve(
     ydot_end = ydot_all[last]
     record = sol.controller_state
 
-    event_hit = sol.result == diffrax.RESULTS.event_occurred
+    event_hit = sol.result == result_code(diffrax.RESULTS.event_occurred)
     hits = {
         name: event_hit & mask
         for name, mask in zip(cond_fns, sol.event_mask, strict=True)
     }
     no_hit = jnp.array(False)
-    step_failed = sol.result == diffrax.RESULTS.dt_min_reached
+    step_failed = sol.result == result_code(diffrax.RESULTS.dt_min_reached)
 
     # Where an event ended the run, diffrax stopped at the end of the step in which
     # its condition changed sign: the run ends at the crossing inside that step
@@ -428,9 +435,9 @@ def _solve(
             hits["gimbal"],
             hits.get("collapse", no_hit),
             hits.get("samples_end", no_hit),
-            sol.result == diffrax.RESULTS.max_steps_reached,
+            sol.result == result_code(diffrax.RESULTS.max_steps_reached),
             step_failed & record.nonfinite,
-            ~(event_hit | (sol.result == diffrax.RESULTS.successful)),
+            ~(event_hit | (sol.result == result_code(diffrax.RESULTS.successful))),
         ],
         [
             Status.NONFINITE,
@@ -495,5 +502,5 @@ def _solve(
         event_time=event_time,
         event_index=index.astype(jnp.int32),
         reaction=None if reaction is None else mask(reaction),
-        n_steps=jnp.asarray(sol.stats["num_steps"], jnp.int32),
+        n_steps=jnp.asarray(sol.num_steps, jnp.int32),
     )

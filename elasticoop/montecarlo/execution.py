@@ -72,11 +72,16 @@ def _run_batch(study: Study, mesh: Mesh, index, strata):
     # The study's arrays are traced and its structure static, so one compilation
     # serves every study of the same structure. `index` has shape
     # (devices, batch_width), axis 0 sharded over the mesh (GSPMD): each device
-    # integrates its `batch_width` samples at once (vmap).
+    # integrates its `batch_width` samples at once, in one loop (`vmap` of
+    # `simulate(..., batch_loop=True)`, over the samples flattened so that the loop
+    # is batched once).
     sharded = NamedSharding(mesh, P("samples"))
-    index = jax.lax.with_sharding_constraint(index, sharded)
+    shape = index.shape
+    index = jax.lax.with_sharding_constraint(index.reshape(-1), sharded)
+    strata = strata.reshape(index.shape[0], *strata.shape[2:])
     strata = jax.lax.with_sharding_constraint(strata, sharded)
-    return jax.vmap(jax.vmap(partial(one_sample, study)))(index, strata)
+    records = jax.vmap(partial(one_sample, study, batch_loop=True))(index, strata)
+    return jax.tree.map(lambda x: x.reshape(*shape, *x.shape[1:]), records)
 
 
 def _template(study: Study) -> dict:

@@ -449,10 +449,12 @@ def _check_labelled(what: str, dims, shape, labels: dict) -> None:
             )
 
 
-def one_sample(study: Study, index, strata_row) -> dict:
+def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dict:
     """Draw, simulate and reduce sample `index`: its record (sample number,
     status, event time, parameter values, outputs). A sample whose draws are not
-    finite is simulated at the nominal values and reported as `INVALID_SAMPLE`."""
+    finite is simulated at the nominal values and reported as `INVALID_SAMPLE`.
+    `batch_loop`: passed to `simulate` (a `vmap` over samples integrates them in
+    one loop)."""
     raw = draw(study, index, strata_row)
     finite = jnp.array(True)
     for value in raw.values():
@@ -462,7 +464,7 @@ def one_sample(study: Study, index, strata_row) -> dict:
         fallback = 1.0 if p.relative else p.nominal(study.inputs)
         inputs = p.apply(inputs, jnp.where(finite, raw[p.name], fallback))
         values[p.name] = jnp.where(finite, p.nominal(inputs), raw[p.name])
-    traj = study.simulate(inputs)
+    traj = study.simulate(inputs, batch_loop=batch_loop)
     outputs = {
         name: jnp.where(finite, out(traj), jnp.nan)
         for name, out in study.outputs.items()

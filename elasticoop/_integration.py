@@ -1,0 +1,391 @@
+"""The solve of `simulate`: `diffrax.diffeqsolve`, or one loop over a whole batch.
+
+`integrate` runs `diffrax.diffeqsolve` with the setup `simulate` uses (an adaptive
+step-size controller, output times `ts` plus the final state, stop conditions
+without a root finder, the controller's final state). Asked for `batch_loop`, it
+keeps doing so on one run, but when `jax.vmap` batches it, it integrates the whole
+batch in one loop instead of `vmap`-ing diffrax's (`jax.custom_batching.custom_vmap`).
+
+Why: `vmap` of diffrax's loop runs the solver's step under `vmap`, which costs
+about three times the step on one batched array (`benchmarks/loop.py`: the Tsit5
+step alone). The batch loop takes diffrax's own step on the batched state, each
+sample with its own time $t_b$ and step $h_b$. The trick is a change of time: in a
+step the batch moves through $s \\in [0, 1]$, sample $b$ being at
+$t = t_b + s h_b$, and `_BatchTerm`'s control is $h_b\\,ds$. A Runge-Kutta step
+from $s = 0$ to $1$ then makes, in every sample, exactly the arithmetic of a step
+from $t_b$ to $t_b + h_b$ (stage times $t_b + c_i h_b$, the last one $t_b + h_b$
+itself, stage increments $k_i = h_b f_i$), and its dense output is the sample's.
+Everything else is diffrax's too, per sample (`vmap`-ed, cheap scalars): the
+step-size controller's `init` and `adapt_step_size`, the solver's interpolation
+for the outputs, and the loop's rules as `diffrax.diffeqsolve` applies them (the
+end clipped within 100 ulps of $t_1$, the first stop condition that changes sign
+from positive to non-positive ends the run at the end of that step, the first
+failure kept, `max_steps`). One sample's steps never depend on the others: the
+first stage of a step is reused from the step before (FSAL) or evaluated for
+that sample alone.
+
+Not differentiable (nor under `jax.jacfwd`): use it for forward runs of batches
+(Monte Carlo), not for gradients. Explicit Runge-Kutta solvers only; with another
+solver, or with a progress meter, `batch_loop` falls back on `vmap` of diffrax.
+"""
+
+from collections.abc import Callable, Sequence
+from functools import partial
+from typing import Any
+
+import diffrax
+import equinox as eqx
+import equinox.internal as eqxi
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, PyTree
+
+from ._custom_types import Scalar
+
+
+def result_code(result: Any) -> int:
+    """The integer of one of diffrax's `RESULTS`, as `Outcome.result` holds it."""
+    return int(result._value)
+
+
+_SUCCESSFUL = result_code(diffrax.RESULTS.successful)
+_EVENT = result_code(diffrax.RESULTS.event_occurred)
+_MAX_STEPS = result_code(diffrax.RESULTS.max_steps_reached)
+
+
+class Outcome(eqx.Module):
+    """What `simulate` reads of a solve: the states at `ts` then at the end (`ts`
+    is inf past the end, as diffrax leaves it), diffrax's `RESULTS` code, which
+    stop condition ended the run, the controller's final state and the number of
+    steps tried. A leading batch axis where the batch loop made it."""
+
+    ts: Float[Array, "*batch saves"]
+    ys: PyTree[Array]
+    result: Int[Array, "*batch"]
+    event_mask: tuple[Bool[Array, "*batch"], ...]
+    controller_state: PyTree
+    num_steps: Int[Array, "*batch"]
+
+
+class _Setup(eqx.Module):
+    """The inputs of a solve that may be traced (and batched)."""
+
+    y0: PyTree[Array]
+    args: Any
+    ts: Float[Array, " times"]
+    dt0: Scalar | float | None
+    controller: diffrax.AbstractAdaptiveStepSizeController
+
+
+def integrate(
+    vector_field: Callable,
+    solver: diffrax.AbstractSolver,
+    y0: PyTree[Array],
+    args: Any,
+    ts: Float[Array, " times"],
+    controller: diffrax.AbstractAdaptiveStepSizeController,
+    conditions: Sequence[Callable[[Scalar, PyTree[Array], Any], Scalar]],
+    max_steps: int,
+    *,
+    dt0: Scalar | float | None = None,
+    adjoint: diffrax.AbstractAdjoint = diffrax.RecursiveCheckpointAdjoint(),
+    progress_meter: diffrax.AbstractProgressMeter = diffrax.NoProgressMeter(),
+    batch_loop: bool = False,
+) -> Outcome:
+    """Integrate $dy/dt = $ `vector_field(t, y, args)` from `ts[0]` to `ts[-1]`,
+    saving at `ts` and at the end, stopping where one of `conditions` (functions of
+    $t$, $y$, `args`) falls from positive to non-positive (at the end of that
+    step). `batch_loop`: under `jax.vmap`, one loop for the batch (see the module's
+    docstring)."""
+    setup = _Setup(y0, args, ts, dt0, controller)
+    arrays, static = eqx.partition(setup, eqx.is_array)
+
+    event = None
+    if conditions:
+        event = diffrax.Event([_of_diffrax(c) for c in conditions], direction=False)
+
+    def diffrax_solve(arrays):
+        setup = eqx.combine(arrays, static)
+        sol = diffrax.diffeqsolve(
+            diffrax.ODETerm(vector_field),
+            solver,
+            t0=setup.ts[0],
+            t1=setup.ts[-1],
+            dt0=setup.dt0,
+            y0=setup.y0,
+            args=setup.args,
+            saveat=diffrax.SaveAt(ts=setup.ts, t1=True, controller_state=True),
+            stepsize_controller=setup.controller,
+            adjoint=adjoint,
+            event=event,
+            max_steps=max_steps,
+            throw=False,
+            progress_meter=progress_meter,
+        )
+        return Outcome(
+            sol.ts,
+            sol.ys,
+            sol.result._value,
+            () if event is None else tuple(sol.event_mask),
+            sol.controller_state,
+            jnp.asarray(sol.stats["num_steps"]),
+        )
+
+    batchable = (
+        batch_loop
+        and isinstance(solver, diffrax.AbstractERK)
+        and isinstance(progress_meter, diffrax.NoProgressMeter)
+    )
+    if not batchable:
+        return diffrax_solve(arrays)
+
+    batchable_solve = jax.custom_batching.custom_vmap(diffrax_solve)
+
+    @batchable_solve.def_vmap
+    def _batched(axis_size, in_batched, arrays):
+        (batched,) = in_batched
+        axes = jax.tree.map(lambda b: 0 if b else None, batched)
+        out = _batch_solve(
+            vector_field, solver, conditions, max_steps, static, arrays, axes
+        )
+        return out, jax.tree.map(lambda _: True, out)
+
+    # JAX cannot differentiate `custom_vmap`: say so in the user's terms.
+    solve = jax.custom_jvp(batchable_solve)
+
+    @solve.defjvp
+    def _no_derivative(primals, tangents):
+        raise ValueError(
+            "simulate(..., batch_loop=True) is not differentiable (forward or "
+            "reverse mode); differentiate with batch_loop=False (the default)"
+        )
+
+    return solve(arrays)
+
+
+def _of_diffrax(condition: Callable) -> Callable:
+    def cond_fn(t, y, args, **_):
+        return condition(t, y, args)
+
+    return cond_fn
+
+
+class _BatchTerm(diffrax.AbstractTerm):
+    """The batch in the time $s \\in [0, 1]$ of one step: sample $b$ at
+    $t_b + s h_b$ (exactly $t_b + h_b$ at $s = 1$, as diffrax's stages), control
+    $h_b\\,ds$."""
+
+    lanes: Callable  # (time of each sample, batched y) -> batched vector field
+    t0: Float[Array, " batch"]
+    t1: Float[Array, " batch"]
+
+    def vf(self, s, y, args):
+        t = jnp.where(s == 1, self.t1, self.t0 + s * (self.t1 - self.t0))
+        return self.lanes(t, y)
+
+    def contr(self, s0, s1, **kwargs):
+        return (s1 - s0) * (self.t1 - self.t0)
+
+    def prod(self, vf, control):
+        return jax.tree.map(lambda v: _by_row(control, v) * v, vf)
+
+
+class _Wrapped(diffrax.AbstractTerm):
+    """`term` as `diffrax.diffeqsolve` hands it to the step-size controller's
+    `init`: wrapped (diffrax wraps every term in its time direction), so that the
+    controller picks the same first step as there (diffrax 0.7 estimates one for an
+    `ODETerm` only, and tries 0.01 for any other term). The tests compare the
+    steps of a batch with single runs."""
+
+    term: diffrax.AbstractTerm
+
+    def vf(self, t, y, args):
+        return self.term.vf(t, y, args)
+
+    def contr(self, t0, t1, **kwargs):
+        return self.term.contr(t0, t1, **kwargs)
+
+    def prod(self, vf, control):
+        return self.term.prod(vf, control)
+
+
+def _by_row(x: Array, like: Array) -> Array:
+    """`x` of shape `(batch,)` shaped to broadcast against `like` row by row."""
+    return x.reshape(x.shape + (1,) * (like.ndim - 1))
+
+
+def _select(pred: Bool[Array, " batch"], new: PyTree, old: PyTree) -> PyTree:
+    return jax.tree.map(lambda n, o: jnp.where(_by_row(pred, n), n, o), new, old)
+
+
+def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axes):
+    """`integrate`'s solve for a batch, in one loop (the module's docstring).
+    `axes`: 0 for the leaves of `arrays` that are batched, else None."""
+
+    def lanes(fn, *lane_axes):
+        """`fn(setup, *per-sample)` for every sample."""
+
+        def one(arrays, *xs):
+            return fn(eqx.combine(arrays, static), *xs)
+
+        return jax.vmap(one, in_axes=(axes, *lane_axes))
+
+    term = diffrax.ODETerm(vector_field)
+    error_order = solver.error_order(term)
+    field = lanes(lambda s, t, y: vector_field(t, y, s.args), 0, 0)
+
+    def evaluate_conditions(t, y):
+        return tuple(
+            lanes(lambda s, t, y, c=c: jnp.asarray(c(t, y, s.args)), 0, 0)(arrays, t, y)
+            for c in conditions
+        )
+
+    def init(s):
+        t_next, state = s.controller.wrap(1).init(
+            _Wrapped(term), s.ts[0], s.ts[-1], s.y0, s.dt0, s.args, solver.func,
+            error_order,
+        )  # fmt: skip
+        # within 100 ulps of the end, a step is stretched to it (as diffrax does)
+        clip_floor = s.ts[-1]
+        for _ in range(100):
+            clip_floor = eqxi.prevbefore(clip_floor)
+        return s.ts, clip_floor, jnp.minimum(t_next, s.ts[-1]), state, s.y0
+
+    # ts: (batch, times)
+    ts, clip_floor, tnext, controller_state, y = lanes(init)(arrays)
+    batch, n_times = ts.shape
+    rows = jnp.arange(batch)
+    t0, t1 = ts[:, 0], ts[:, -1]
+    fsal = jax.eval_shape(
+        lanes(lambda s: solver.init(term, s.ts[0], s.ts[-1], s.y0, s.args)), arrays
+    )
+    fsal = fsal is not None
+    carry = dict(
+        tprev=t0,
+        tnext=tnext,
+        y=y,
+        # the first stage of the next step (FSAL), evaluated where `fresh`
+        f0=jax.tree.map(jnp.zeros_like, y) if fsal else None,
+        fresh=jnp.ones(batch, bool),
+        made_jump=jnp.zeros(batch, bool),
+        controller_state=controller_state,
+        result=jnp.full(batch, _SUCCESSFUL, jnp.int32),
+        num_steps=jnp.zeros(batch, jnp.int32),
+        values=evaluate_conditions(t0, y),
+        mask=tuple(jnp.zeros(batch, bool) for _ in conditions),
+        next_time=jnp.zeros(batch, jnp.int32),  # index into ts
+        next_slot=jnp.zeros(batch, jnp.int32),  # index into the outputs
+        saved_ts=jnp.full((batch, n_times + 1), jnp.inf, t0.dtype),
+        saved_ys=jax.tree.map(
+            lambda x: jnp.full((batch, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype),
+            y,
+        ),
+    )
+
+    def unfinished(c):
+        return (c["tprev"] < t1) & (c["result"] == _SUCCESSFUL)
+
+    def running(c):
+        return unfinished(c) & (c["num_steps"] < max_steps)
+
+    def adapt(s, tprev, tnext, y0, y1, y_error, state):
+        return s.controller.wrap(1).adapt_step_size(
+            tprev, tnext, y0, y1, s.args, y_error, error_order, state
+        )
+
+    adapt = lanes(adapt, 0, 0, 0, 0, 0, 0)
+
+    def body(c):
+        active = running(c)
+        f0 = c["f0"]
+        if fsal:
+            redo = (c["fresh"] | c["made_jump"]) & active
+            f0 = jax.lax.cond(
+                jnp.any(redo),
+                lambda: _select(redo, field(arrays, c["tprev"], c["y"]), f0),
+                lambda: f0,
+            )
+        step_term = _BatchTerm(partial(field, arrays), c["tprev"], c["tnext"])
+        y1, y_error, dense, solver_state, _ = solver.step(
+            step_term, 0.0, 1.0, c["y"], None, (False, f0) if fsal else None, False
+        )
+        y_error = jax.tree.map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
+        keep, tprev, tnext, made_jump, controller_state, result = adapt(
+            arrays, c["tprev"], c["tnext"], c["y"], y1, y_error, c["controller_state"]
+        )
+        tprev = jnp.minimum(tprev, t1)
+        tnext = jnp.where(
+            tnext > clip_floor, jnp.where(keep, t1, tprev + 0.5 * (t1 - tprev)), tnext
+        )
+        y = _select(keep, y1, c["y"])
+        if fsal:
+            f0 = _select(keep, solver_state[1], f0)
+        made_jump = jnp.where(keep, made_jump, c["made_jump"])
+        result = jnp.where(c["result"] == _SUCCESSFUL, result._value, c["result"])
+        outputs = _save_outputs(solver, dense, c, active & keep, ts, rows, n_times)
+        values = evaluate_conditions(tprev, y)
+        mask, had_event = [], jnp.zeros(batch, bool)
+        for old, new in zip(c["values"], values, strict=True):
+            hit = (jnp.sign(old) > 0) & (jnp.sign(new) <= 0)
+            mask.append(hit & ~had_event)
+            had_event = had_event | hit
+        new = dict(
+            tprev=tprev,
+            tnext=tnext,
+            y=y,
+            f0=f0,
+            fresh=c["fresh"] & ~keep,
+            made_jump=made_jump,
+            controller_state=controller_state,
+            result=jnp.where(had_event, _EVENT, result),
+            num_steps=c["num_steps"] + 1,
+            values=values,
+            mask=tuple(mask),
+        )
+        # the outputs are written only where a step was accepted
+        frozen = {k: v for k, v in c.items() if k not in outputs}
+        return _select(active, new, frozen) | outputs
+
+    c = jax.lax.while_loop(lambda c: jnp.any(running(c)), body, carry)
+    result = jnp.where(unfinished(c), _MAX_STEPS, c["result"])
+    # the end state after the outputs, as diffrax's SaveAt(t1=True)
+    slot = c["next_slot"]
+    saved_ts = c["saved_ts"].at[rows, slot].set(c["tprev"], mode="drop")
+    saved_ys = jax.tree.map(
+        lambda b, v: b.at[rows, slot].set(v, mode="drop"), c["saved_ys"], c["y"]
+    )
+    return Outcome(
+        saved_ts, saved_ys, result, c["mask"], c["controller_state"], c["num_steps"]
+    )
+
+
+def _save_outputs(solver, dense, c, accepted, ts, rows, n_times) -> dict:
+    """The output times inside the step just accepted, from the solver's dense
+    output, written sample by sample (diffrax's `SaveAt(ts)`)."""
+    info_axes = {k: 1 if k == "k" else 0 for k in dense}
+
+    def evaluate(info, t0, t1, t):
+        return solver.interpolation_cls(t0=t0, t1=t1, **info).evaluate(t)
+
+    evaluate = jax.vmap(evaluate, in_axes=(info_axes, 0, 0, 0))
+
+    def due(state):
+        index = state[0]
+        t = jnp.take_along_axis(ts, jnp.minimum(index, n_times - 1)[:, None], 1)[:, 0]
+        return accepted & (index < n_times) & (t <= c["tnext"]), t
+
+    def save(state):
+        index, slot, saved_ts, saved_ys = state
+        now, t = due(state)
+        y = evaluate(dense, c["tprev"], c["tnext"], t)
+        slot_now = jnp.where(now, slot, n_times + 1)  # out of range: not written
+        saved_ts = saved_ts.at[rows, slot_now].set(t, mode="drop")
+        saved_ys = jax.tree.map(
+            lambda b, v: b.at[rows, slot_now].set(v, mode="drop"), saved_ys, y
+        )
+        step = now.astype(index.dtype)
+        return index + step, slot + step, saved_ts, saved_ys
+
+    state = (c["next_time"], c["next_slot"], c["saved_ts"], c["saved_ys"])
+    state = jax.lax.while_loop(lambda s: jnp.any(due(s)[0]), save, state)
+    return dict(zip(("next_time", "next_slot", "saved_ts", "saved_ys"), state))

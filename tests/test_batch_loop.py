@@ -1,0 +1,156 @@
+"""`simulate(..., batch_loop=True)` under `vmap` integrates the batch in one loop,
+each element with its own steps. Checked against `vmap` of diffrax's own loop (the
+default, which equals single runs): the same number of steps, statuses, events and
+event times, and the same states to rounding, in batches where elements stop
+early (NaN inputs, max_steps, gimbal lock, a collapsed link, the end of sampled
+forces), take jump times, follow prescribed motion or use other solvers."""
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import SMALL_TS, hold, run_tight, small_two_body_model
+
+import elasticoop as eo
+
+MODEL, Y0 = small_two_body_model()
+YDOT0 = jnp.zeros_like(Y0).at[1, 2].set(0.5)
+LIFT = jnp.array([[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]])
+UP = (0.0, np.pi / 2, 0.0)
+
+
+def _both(run, *batched):
+    """`run` vmapped over `batched`, with diffrax's loop and with the batch loop."""
+    plain = jax.vmap(lambda *a: run(*a, batch_loop=False))(*batched)
+    loop = jax.vmap(lambda *a: run(*a, batch_loop=True))(*batched)
+    return plain, loop
+
+
+def _assert_same(plain: eo.Trajectory, loop: eo.Trajectory):
+    for name in ("status", "event_index", "n_steps"):
+        np.testing.assert_array_equal(
+            getattr(loop, name), getattr(plain, name), err_msg=name
+        )
+    for name in ("y", "ydot", "work", "dissipated", "event_time", "reaction"):
+        if getattr(plain, name) is None:
+            assert getattr(loop, name) is None
+            continue
+        # rounding only (the same arithmetic, possibly fused differently), relative
+        # to the scale of the states (1 m, 1 m/s, 1 J) for entries near zero
+        np.testing.assert_allclose(
+            getattr(loop, name),
+            getattr(plain, name),
+            rtol=1e-12,
+            atol=1e-13,
+            err_msg=name,
+        )
+
+
+def _two_body(stiffness, force, y_init, max_steps=200, **options):
+    model = eqx.tree_at(lambda m: m.stiffness, MODEL, stiffness)
+    return eo.simulate(
+        model,
+        y_init,
+        YDOT0,
+        SMALL_TS,
+        forces=force,
+        max_steps=max_steps,
+        throw=False,
+        **options,
+    )
+
+
+def test_batch_equals_vmap_of_single_runs_with_failing_elements():
+    # stiff and soft grasps (different steps), a NaN force, a NaN start, and
+    # max_steps between the step counts of the soft and the stiff grasps
+    scale = jnp.array([1.0, 30.0, 1.0, 1.0, 0.5])[:, None, None] * MODEL.stiffness
+    forces = jnp.stack([LIFT, LIFT, LIFT.at[0, 2].set(jnp.nan), LIFT, 0.5 * LIFT])
+    starts = jnp.stack([Y0, Y0, Y0, Y0.at[1, 4].set(jnp.nan), Y0])
+    plain, loop = _both(_two_body, scale, forces, starts)
+    nonfinite, most = eo.Status.NONFINITE, eo.Status.MAX_STEPS_REACHED
+    np.testing.assert_array_equal(plain.status, [0, most, nonfinite, nonfinite, 0])
+    _assert_same(plain, loop)
+    # elements do not wait for each other: the soft ones stop at their own steps
+    assert int(loop.n_steps[0]) < int(loop.n_steps[1]) == 200
+
+
+def test_outside_vmap_it_is_the_plain_run_and_not_differentiable():
+    def final_height(stiffness, batch_loop):
+        traj = _two_body(MODEL.stiffness * stiffness, LIFT, Y0, batch_loop=batch_loop)
+        return traj.y[-1, 1, 2]
+
+    assert float(final_height(1.0, True)) == float(final_height(1.0, False))
+    with pytest.raises(ValueError, match=r"batch_loop=True\) is not differentiable"):
+        jax.grad(final_height)(1.0, True)
+
+
+@pytest.mark.slow
+def test_sampled_forces_with_jumps_and_ends_before_the_run():
+    # traced samples: every sample time is a jump time (made_jump, a fresh first
+    # stage); the second element's samples end at 0.15 s, before the run
+    ends = jnp.array([0.25, 0.15, 0.3])
+    lifts = jnp.array([12.0, 15.0, 18.0])
+
+    def run(end, lift, batch_loop):
+        ts = jnp.linspace(0.0, end, 7)
+        F = lift * jnp.abs(jnp.sin(20 * ts))[:, None, None] * (LIFT / 15.0)
+        force = eo.SampledForce(ts, F)
+        return _two_body(MODEL.stiffness, force, Y0, 400, batch_loop=batch_loop)
+
+    plain, loop = _both(run, ends, lifts)
+    outside = eo.Status.OUTSIDE_FORCE_SAMPLES
+    np.testing.assert_array_equal(plain.status, [0, outside, 0])
+    _assert_same(plain, loop)
+
+
+@pytest.mark.slow
+def test_gimbal_lock_and_collapsed_link_in_a_batch():
+    # two bodies rushing together through a link of rest length 0.1 m (collapses
+    # at the fast speeds), both spinning about their x axis (gimbal lock at the
+    # fast spin)
+    bodies = [eo.RigidBody(1.0, (0.1, 0.1, 0.1))] * 2
+    link = eo.Connection(0, 1, [100.0] * 6, [0.0] * 6, rest_length=0.1)
+    model = eo.MobileModel(bodies, [link], gravity=0.0)
+    y0 = jnp.array([[0.05, 0, 0, *UP], [-0.05, 0, 0, *UP]])
+
+    def run(speed, spin, batch_loop):
+        ydot0 = jnp.zeros_like(y0).at[0, 0].set(-speed / 2).at[1, 0].set(speed / 2)
+        ydot0 = ydot0.at[:, 4].set(spin)
+        return run_tight(model, y0, ydot0, 0.3, throw=False, batch_loop=batch_loop)
+
+    speeds = jnp.array([2.0, 0.5, 0.5])
+    spins = jnp.array([0.0, 0.0, 8.0])
+    plain, loop = _both(run, speeds, spins)
+    statuses = [eo.Status.LINK_COLLAPSED, 0, eo.Status.GIMBAL_LOCK]
+    np.testing.assert_array_equal(plain.status, statuses)
+    _assert_same(plain, loop)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "solver", [diffrax.Dopri5(), diffrax.Dopri8()], ids=["dopri5", "dopri8"]
+)
+def test_prescribed_motion_and_other_solvers(solver):
+    # the grasp held still (its reaction reported), the object free; Dopri8 has no
+    # first-same-as-last stage
+    motion = hold(jnp.zeros((2, 6), bool).at[1].set(True), Y0)
+    scale = jnp.array([1.0, 3.0])[:, None, None] * MODEL.stiffness
+
+    def run(stiffness, batch_loop):
+        model = eqx.tree_at(lambda m: m.stiffness, MODEL, stiffness)
+        return eo.simulate(
+            model,
+            Y0.at[0, 2].add(0.01),
+            jnp.zeros_like(Y0),
+            SMALL_TS,
+            solver=solver,
+            prescribed=motion,
+            throw=False,
+            batch_loop=batch_loop,
+        )
+
+    plain, loop = _both(run, scale)
+    np.testing.assert_array_equal(plain.status, [0, 0])
+    _assert_same(plain, loop)
