@@ -7,16 +7,19 @@ Problem: the Monte Carlo study of `benchmarks/montecarlo.py` (3-body MobileModel
 scalars), B = 256 samples (8 at smoke size) on one XLA device. Timed side by side in
 one process, best of 3 after compilation:
 
-- `solve`: `simulate` of every sample, `jax.vmap`-ed and jitted (what `run_study`
-  runs on a device; the whole `Trajectory` returned);
+- `solve`: `simulate` of every sample, `jax.vmap`-ed and jitted (the whole
+  `Trajectory` returned): `vmap` of diffrax's loop;
+- `solve_batch_loop`: the same with `batch_loop=True`, one loop for the batch (what
+  `run_study` runs on a device);
 - `rhs`: the vector field that `simulate` hands to diffrax (accelerations, work and
   dissipation rates on the packed state), `vmap`-ed over the same per-sample models,
   evaluated 6 times per step for the slowest sample's step count (a `vmap`-ed loop
   runs until its last lane is done; Tsit5 evaluates 6 new stages per step), the
   evaluations chained inside one compiled loop.
 
-`solve / rhs` is the loop's overhead factor: solver arithmetic, step-size control,
-stop conditions and saving, and what `vmap` adds to them. To show where it comes
+`solve_batch_loop / rhs` (and `solve / rhs`) is the loop's overhead factor: solver
+arithmetic, step-size control, stop conditions and saving, and what `vmap` adds to
+them. To show where it comes
 from, also timed: the Tsit5 step alone (diffrax, a vector field that costs almost
 nothing, dx/dt = -1e-9 c x, constant steps, as many as the slowest sample's),
 `vmap`-ed over B states of the packed size and on one `(B, size)` state.
@@ -58,23 +61,28 @@ def run(quick: bool = False) -> dict:
     def with_stiffness(k):
         return eqx.tree_at(lambda m: m.stiffness, model, k)
 
-    @jax.jit
-    def solve(stiffness):
-        def one(k):
-            traj = eo.simulate(
-                with_stiffness(k),
-                y0,
-                ydot0,
-                ts,
-                forces=forces,
-                rtol=1e-8,
-                atol=1e-10,
-                throw=False,
-            )
-            return traj, traj.n_steps
+    def solver(batch_loop):
+        @jax.jit
+        def solve(stiffness):
+            def one(k):
+                traj = eo.simulate(
+                    with_stiffness(k),
+                    y0,
+                    ydot0,
+                    ts,
+                    forces=forces,
+                    rtol=1e-8,
+                    atol=1e-10,
+                    throw=False,
+                    batch_loop=batch_loop,
+                )
+                return traj, traj.n_steps
 
-        return jax.vmap(one)(stiffness)
+            return jax.vmap(one)(stiffness)
 
+        return solve
+
+    solve, solve_batch_loop = solver(False), solver(True)
     _, steps = solve(stiffness)
     steps = np.asarray(steps)
     n_evals = STAGES_PER_STEP * int(steps.max())
@@ -101,6 +109,7 @@ def run(quick: bool = False) -> dict:
     times = interleaved_best_times(
         {
             "solve": (solve, (stiffness,)),
+            "solve_batch_loop": (solve_batch_loop, (stiffness,)),
             "rhs": (rhs, (stiffness,)),
             "step_vmapped": (step_vmapped, (states, rates)),
             "step_unbatched": (step_unbatched, (states, rates)),
@@ -115,9 +124,11 @@ def run(quick: bool = False) -> dict:
         "solve_ms_per_sample": 1e3 * times["solve"] / batch,
         "rhs_ms_per_sample": 1e3 * times["rhs"] / batch,
         "solve_over_rhs": times["solve"] / times["rhs"],
+        "batch_loop_ms_per_sample": 1e3 * times["solve_batch_loop"] / batch,
+        "batch_loop_over_rhs": times["solve_batch_loop"] / times["rhs"],
         "tsit5_step_alone_vmapped_us": 1e6 * times["step_vmapped"] / n_steps,
         "tsit5_step_alone_unbatched_us": 1e6 * times["step_unbatched"] / n_steps,
-        "target": "solve_over_rhs <= 1.3",
+        "target": "batch_loop_over_rhs <= 1.3",
     }
 
 

@@ -4,10 +4,17 @@
 diffrax then checks each condition at the end of every step and ends the solve at
 the end of the step in which one changed sign. `locate_event` then finds the
 crossing inside that step, once, after the loop and outside differentiation: by
-Newton's method (`rtol = atol = 1e-12`, bracketed by the step) on the cubic Hermite
-interpolant of $Y$ through $Y, \\dot Y$ at both ends of the step. The conditions
-depend on $Y$ only (the orientation's regularity, the link lengths, time), and the
-interpolant needs no evaluation of the right-hand side.
+bisection of the step (`rtol = atol = 1e-14`; every condition falls from positive
+to non-positive in it) on the cubic Hermite interpolant of $Y$ through
+$Y, \\dot Y$ at both ends of the step. The conditions depend on $Y$ only (the
+orientation's regularity, the link lengths, time), and the interpolant needs no
+evaluation of the right-hand side.
+
+Bisection rather than Newton's method: optimistix's Newton solves its linear
+system with lineax, whose Jacobian operator fails equinox's closure-conversion
+check inside `jax.shard_map`, where `run_study` runs each device's samples. A
+bisection needs no derivative; about 40 halvings of a step take it to 1e-14 s, once
+per run.
 
 Why not diffrax's root finder: it is part of the solve, so under `jax.grad` its
 implicit derivative is traced, transposed and compiled with it, and the dense
@@ -37,8 +44,8 @@ from jaxtyping import Array, Bool
 
 from ._custom_types import Scalar, State
 
-# Newton's method, as diffrax's event root finder was configured in `simulate`.
-ROOT_FINDER: optx.Newton = optx.Newton(rtol=1e-12, atol=1e-12)
+# bisection of the step in which a condition fell to zero (see the docstring)
+ROOT_FINDER = optx.Bisection(rtol=1e-14, atol=1e-14, flip=True)
 
 
 def hermite(

@@ -386,6 +386,14 @@ def _save_outputs(solver, dense, c, accepted, ts, rows, n_times) -> dict:
         step = now.astype(index.dtype)
         return index + step, slot + step, saved_ts, saved_ys
 
+    def pending(state):
+        return jnp.any(due(state)[0])
+
     state = (c["next_time"], c["next_slot"], c["saved_ts"], c["saved_ys"])
-    state = jax.lax.while_loop(lambda s: jnp.any(due(s)[0]), save, state)
+    # most steps hold no output time: the loop is entered only where one does
+    state = jax.lax.cond(
+        pending(state),
+        lambda: jax.lax.while_loop(pending, save, state),
+        lambda: state,
+    )
     return dict(zip(("next_time", "next_slot", "saved_ts", "saved_ys"), state))

@@ -2,9 +2,10 @@
 
 The samples are cut into chunks of `chunk_size` (chosen from a memory budget), the
 unit of storage and of resumption. A chunk runs as batches of
-`batch_width x devices` samples: each batch is one array of sample numbers, sharded
-over every device of every process (a one-axis `Mesh`, partitioned by `jit`), and
-each device integrates its `batch_width` samples at once (`jax.vmap`). One compiled
+`batch_width x devices` samples: each batch is one array of sample numbers, split
+over every device of every process (a one-axis `Mesh`, `jax.shard_map`), and each
+device integrates its `batch_width` samples at once, in one loop of its own
+(`jax.vmap` of `simulate(..., batch_loop=True)`). One compiled
 function serves every chunk size, and every study of the same structure (the
 study's arrays are traced, see `Study`). A sample's result depends only on the
 study, its number and `batch_width`: not on the chunk size, its position in the
@@ -71,17 +72,23 @@ _MAX_BATCHES_PER_CHUNK = 64
 def _run_batch(study: Study, mesh: Mesh, index, strata):
     # The study's arrays are traced and its structure static, so one compilation
     # serves every study of the same structure. `index` has shape
-    # (devices, batch_width), axis 0 sharded over the mesh (GSPMD): each device
-    # integrates its `batch_width` samples at once, in one loop (`vmap` of
-    # `simulate(..., batch_loop=True)`, over the samples flattened so that the loop
-    # is batched once).
-    sharded = NamedSharding(mesh, P("samples"))
-    shape = index.shape
-    index = jax.lax.with_sharding_constraint(index.reshape(-1), sharded)
-    strata = strata.reshape(index.shape[0], *strata.shape[2:])
-    strata = jax.lax.with_sharding_constraint(strata, sharded)
-    records = jax.vmap(partial(one_sample, study, batch_loop=True))(index, strata)
-    return jax.tree.map(lambda x: x.reshape(*shape, *x.shape[1:]), records)
+    # (devices, batch_width), axis 0 split over the mesh: each device integrates
+    # its `batch_width` samples at once, in its own loop (`shard_map` of a `vmap`
+    # of `simulate(..., batch_loop=True)`), not waiting for the other devices.
+    arrays, static = eqx.partition(study, eqx.is_array)
+
+    def on_device(arrays, index, strata):
+        sample = partial(one_sample, eqx.combine(arrays, static), batch_loop=True)
+        records = jax.vmap(sample)(index[0], strata[0])
+        return jax.tree.map(lambda x: x[None], records)
+
+    return jax.shard_map(
+        on_device,
+        mesh=mesh,
+        in_specs=(P(), P("samples"), P("samples")),
+        out_specs=P("samples"),
+        check_vma=False,
+    )(arrays, index, strata)
 
 
 def _template(study: Study) -> dict:
