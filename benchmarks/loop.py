@@ -4,7 +4,8 @@
 
 Problem: the Monte Carlo study of `benchmarks/montecarlo.py` (3-body MobileModel,
 2 connections, 2 s, rtol 1e-8, atol 1e-10, Tsit5, 12 log-normal stiffness
-scalars), B = 256 samples (8 at smoke size) on one XLA device. Timed side by side in
+scalars), B = `run_study`'s default batch width (`montecarlo.DEFAULT_BATCH_WIDTH`,
+128) samples (8 at smoke size) on one XLA device. Timed side by side in
 one process, best of 3 after compilation:
 
 - `solve`: `simulate` of every sample, `jax.vmap`-ed and jitted (the whole
@@ -48,7 +49,7 @@ STAGES_PER_STEP = 6  # Tsit5: 7 stages, the first reused from the step before
 
 
 def run(quick: bool = False) -> dict:
-    batch = 8 if quick else 256
+    batch = 8 if quick else mc.DEFAULT_BATCH_WIDTH
     study = three_body_study(batch)
     inputs = study.inputs
     model = inputs.model

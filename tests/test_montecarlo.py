@@ -426,7 +426,8 @@ def test_default_batch_width_fills_the_devices_and_fits_the_memory_budget(study)
     many = _study(n_samples=2 * mc.DEFAULT_BATCH_WIDTH + 88)
     assert mc.default_batch_width(many, 2**30) == mc.DEFAULT_BATCH_WIDTH
     assert mc.default_batch_width(many, 2**30, n_devices=2) == mc.DEFAULT_BATCH_WIDTH
-    assert mc.default_batch_width(many, 2**30, n_devices=4) == 150
+    # fewer than the default on each of 4 devices: ceil(samples / 4)
+    assert mc.default_batch_width(many, 2**30, n_devices=4) == -(-many.n_samples // 4)
     for budget, devices in ((2**20, 1), (2**20, 2), (400_000, 1), (100_000, 1)):
         width = mc.default_batch_width(study, budget, devices)
         start = -(-N_SAMPLES // devices)

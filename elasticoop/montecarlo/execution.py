@@ -44,13 +44,14 @@ from .store import (
 )
 from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
 
-DEFAULT_BATCH_WIDTH = 256
+DEFAULT_BATCH_WIDTH = 128
 """Samples integrated together on each device unless `run_study` is given a
 `batch_width` (fewer when the samples do not fill every device, and halved until a
-batch fits the memory budget: `default_batch_width`). The fastest width on the 2-core
-CPU (one XLA device per core) for the 3-body study of `benchmarks/montecarlo.py`: 32
-took twice as long per sample, 2048 1.3x as long (a `vmap`-ed loop runs until its
-slowest sample is done)."""
+batch fits the memory budget: `default_batch_width`). Among the fastest widths on
+the 2-core CPU (one XLA device per core) for the 3-body study of
+`benchmarks/montecarlo.py`, 1024 samples: 1.76-1.78 ms per sample at 128, 1.70-1.81
+at 64, 1.95-2.00 at 256, 2.08 at 512 (a batch runs until its slowest sample is
+done, and a wider one leaves the caches)."""
 DEFAULT_MEMORY_BUDGET = 2**30  # bytes, where the devices do not report their memory
 # Share of an accelerator's memory (the smallest of the devices) a chunk may use
 # per device when the devices report their memory (GPUs); the rest is left to
@@ -278,7 +279,7 @@ def run_study(
       store keeps its own).
     - `batch_width`: samples integrated together by `vmap` on each device. Results
       depend on it at the level of floating-point rounding, so it is recorded, and
-      a resumed store keeps its own. Default: `DEFAULT_BATCH_WIDTH` (256), or fewer
+      a resumed store keeps its own. Default: `DEFAULT_BATCH_WIDTH` (128), or fewer
       when the samples (or `chunk_size`) do not fill every device, halved until
       one batch fits `memory_budget` (`default_batch_width`).
     - `memory_budget`: bytes the chunk may use (sets the default `chunk_size`).
