@@ -13,8 +13,8 @@ evaluation of the right-hand side.
 Bisection rather than Newton's method: optimistix's Newton solves its linear
 system with lineax, whose Jacobian operator fails equinox's closure-conversion
 check inside `jax.shard_map`, where `run_study` runs each device's samples. A
-bisection needs no derivative; about 40 halvings of a step take it to 1e-14 s, once
-per run.
+bisection needs no derivative; about 40 halvings of a step take it to 1e-14 s (at
+most 64, one unit in the last place), once per run.
 
 Why not diffrax's root finder: it is part of the solve, so under `jax.grad` its
 implicit derivative is traced, transposed and compiled with it, and the dense
@@ -44,8 +44,14 @@ from jaxtyping import Array, Bool
 
 from ._custom_types import Scalar, State
 
-# bisection of the step in which a condition fell to zero (see the docstring)
-ROOT_FINDER = optx.Bisection(rtol=1e-14, atol=1e-14, flip=True)
+# bisection of the step in which a condition fell to zero (see the docstring);
+# optimistix's `norm` is a class variable, which mypy takes for a field
+ROOT_FINDER: optx.Bisection = optx.Bisection(  # type: ignore[call-arg]
+    rtol=1e-14, atol=1e-14, flip=True
+)
+# Halvings of the step at most: 64 reach one unit in the last place of any step,
+# where a condition's rounding keeps it from falling below `atol`.
+MAX_HALVINGS = 64
 
 
 def hermite(
@@ -108,6 +114,7 @@ def locate_event(
         ROOT_FINDER,
         y0=t1,
         options=dict(lower=t0, upper=t1),
+        max_steps=MAX_HALVINGS,
         throw=False,
     )
     t_event = jnp.clip(root.value, t0, t1)

@@ -35,7 +35,6 @@ from typing import Any
 
 import diffrax
 import equinox as eqx
-import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
@@ -128,7 +127,7 @@ def integrate(
             sol.result._value,
             () if event is None else tuple(sol.event_mask),
             sol.controller_state,
-            jnp.asarray(sol.stats["num_steps"]),
+            jnp.asarray(sol.stats["num_steps"], jnp.int32),
         )
 
     batchable = (
@@ -175,13 +174,13 @@ class _BatchTerm(diffrax.AbstractTerm):
     $t_b + s h_b$ (exactly $t_b + h_b$ at $s = 1$, as diffrax's stages), control
     $h_b\\,ds$."""
 
-    lanes: Callable  # (time of each sample, batched y) -> batched vector field
+    field: Callable  # (time of each sample, batched y) -> batched vector field
     t0: Float[Array, " batch"]
     t1: Float[Array, " batch"]
 
     def vf(self, s, y, args):
         t = jnp.where(s == 1, self.t1, self.t0 + s * (self.t1 - self.t0))
-        return self.lanes(t, y)
+        return self.field(t, y)
 
     def contr(self, s0, s1, **kwargs):
         return (s1 - s0) * (self.t1 - self.t0)
@@ -209,6 +208,11 @@ class _Wrapped(diffrax.AbstractTerm):
         return self.term.prod(vf, control)
 
 
+def _float_before(x: Array) -> Array:
+    """The float before `x` (diffrax's `t1 - 100 ulps` is 100 of these)."""
+    return jnp.where(x == 0, -jnp.finfo(x.dtype).tiny, jnp.nextafter(x, -jnp.inf))
+
+
 def _by_row(x: Array, like: Array) -> Array:
     """`x` of shape `(batch,)` shaped to broadcast against `like` row by row."""
     return x.reshape(x.shape + (1,) * (like.ndim - 1))
@@ -222,21 +226,23 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
     """`integrate`'s solve for a batch, in one loop (the module's docstring).
     `axes`: 0 for the leaves of `arrays` that are batched, else None."""
 
-    def lanes(fn, *lane_axes):
+    def per_sample(fn, *sample_axes):
         """`fn(setup, *per-sample)` for every sample."""
 
         def one(arrays, *xs):
             return fn(eqx.combine(arrays, static), *xs)
 
-        return jax.vmap(one, in_axes=(axes, *lane_axes))
+        return jax.vmap(one, in_axes=(axes, *sample_axes))
 
     term = diffrax.ODETerm(vector_field)
     error_order = solver.error_order(term)
-    field = lanes(lambda s, t, y: vector_field(t, y, s.args), 0, 0)
+    field = per_sample(lambda s, t, y: vector_field(t, y, s.args), 0, 0)
 
     def evaluate_conditions(t, y):
         return tuple(
-            lanes(lambda s, t, y, c=c: jnp.asarray(c(t, y, s.args)), 0, 0)(arrays, t, y)
+            per_sample(lambda s, t, y, c=c: jnp.asarray(c(t, y, s.args)), 0, 0)(
+                arrays, t, y
+            )
             for c in conditions
         )
 
@@ -248,23 +254,25 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
         # within 100 ulps of the end, a step is stretched to it (as diffrax does)
         clip_floor = s.ts[-1]
         for _ in range(100):
-            clip_floor = eqxi.prevbefore(clip_floor)
+            clip_floor = _float_before(clip_floor)
         return s.ts, clip_floor, jnp.minimum(t_next, s.ts[-1]), state, s.y0
 
     # ts: (batch, times)
-    ts, clip_floor, tnext, controller_state, y = lanes(init)(arrays)
+    ts, clip_floor, tnext, controller_state, y = per_sample(init)(arrays)
     batch, n_times = ts.shape
     rows = jnp.arange(batch)
     t0, t1 = ts[:, 0], ts[:, -1]
-    fsal = jax.eval_shape(
-        lanes(lambda s: solver.init(term, s.ts[0], s.ts[-1], s.y0, s.args)), arrays
+    solver_state = jax.eval_shape(
+        per_sample(lambda s: solver.init(term, s.ts[0], s.ts[-1], s.y0, s.args)),
+        arrays,
     )
-    fsal = fsal is not None
+    fsal = solver_state is not None  # first stage the same as the last one
     carry = dict(
         tprev=t0,
         tnext=tnext,
         y=y,
-        # the first stage of the next step (FSAL), evaluated where `fresh`
+        # the first stage of the next step (FSAL), evaluated where `fresh` (no step
+        # accepted yet) or after a jump
         f0=jax.tree.map(jnp.zeros_like, y) if fsal else None,
         fresh=jnp.ones(batch, bool),
         made_jump=jnp.zeros(batch, bool),
@@ -293,7 +301,7 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
             tprev, tnext, y0, y1, s.args, y_error, error_order, state
         )
 
-    adapt = lanes(adapt, 0, 0, 0, 0, 0, 0)
+    adapt = per_sample(adapt, 0, 0, 0, 0, 0, 0)
 
     def body(c):
         active = running(c)

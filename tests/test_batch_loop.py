@@ -1,8 +1,8 @@
-"""`simulate(..., batch_loop=True)` under `vmap` integrates the batch in one loop,
-each element with its own steps. Checked against `vmap` of diffrax's own loop (the
-default, which equals single runs): the same number of steps, statuses, events and
-event times, and the same states to rounding, in batches where elements stop
-early (NaN inputs, max_steps, gimbal lock, a collapsed link, the end of sampled
+"""`simulate(..., batch_loop=True)` under `vmap` integrates the batch in one loop, each
+element with its own steps. Checked against `vmap` of diffrax's own loop (the
+default, which equals single runs to rounding): the same number of steps, statuses,
+events and event times, and the same states to rounding, in batches where elements
+stop early (NaN inputs, max_steps, gimbal lock, a collapsed link, the end of sampled
 forces), take jump times, follow prescribed motion or use other solvers."""
 
 import diffrax
