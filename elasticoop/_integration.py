@@ -376,14 +376,8 @@ def _interpolation(solver, dense) -> Callable:
     The coefficients $c$ of each sample are the interpolant of the unit vectors
     (`vmap`-ed over the samples, a few numbers each), and the sum runs on the
     whole batch: `vmap` of the interpolant itself contracts each sample's stages
-    on its own, three times slower in `benchmarks/loop.py`'s batch loop."""
-    if set(dense) != {"y0", "y1", "k"}:
-        axes = {k: 1 if k == "k" else 0 for k in dense}
-
-        def one(info, t0, t1, t):
-            return solver.interpolation_cls(t0=t0, t1=t1, **info).evaluate(t)
-
-        return jax.vmap(one, in_axes=(axes, 0, 0, 0))
+    on its own, three times slower in `benchmarks/loop.py`'s batch loop. (Every
+    diffrax Runge-Kutta step gives its dense output as `y0`, `y1` and `k`.)"""
     stages = jax.tree.leaves(dense["k"])[0].shape[0]
     unit = jnp.eye(2 + stages, dtype=jax.tree.leaves(dense["y0"])[0].dtype)
 
@@ -431,10 +425,5 @@ def _save_outputs(solver, dense, c, accepted, ts, rows, n_times) -> dict:
         return jnp.any(due(state)[0])
 
     state = (c["next_time"], c["next_slot"], c["saved_ts"], c["saved_ys"])
-    # most steps hold no output time: the loop is entered only where one does
-    state = jax.lax.cond(
-        pending(state),
-        lambda: jax.lax.while_loop(pending, save, state),
-        lambda: state,
-    )
+    state = jax.lax.while_loop(pending, save, state)
     return dict(zip(("next_time", "next_slot", "saved_ts", "saved_ys"), state))
