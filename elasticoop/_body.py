@@ -7,7 +7,7 @@ from jaxtyping import Array, Float
 
 from ._custom_types import BodyCoordinate, BodyCoordinates, BodyState
 from ._rotations import AbstractRotation
-from ._validation import as_float_array, require
+from ._validation import as_float_array, require, stack
 
 # Relative slack in the triangle inequality A + B >= C (a planar lamina has equality).
 _TRIANGLE_RTOL = 1e-12
@@ -64,7 +64,7 @@ def stack_bodies(bodies) -> RigidBody:
     for k, body in enumerate(bodies):
         if not isinstance(body, RigidBody):
             raise ValueError(f"bodies[{k}] must be a RigidBody, got {body!r}")
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *bodies)
+    return jax.tree.map(lambda *xs: stack(xs), *bodies)
 
 
 def kinetic_energy(

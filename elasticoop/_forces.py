@@ -303,7 +303,7 @@ def check_force(
     if force is None:
         return None
     n_bodies = y_init.shape[0]
-    value = jax.eval_shape(force, ts[0], y_init, ydot_init)
+    value = jax.eval_shape(force, jax.ShapeDtypeStruct((), ts.dtype), y_init, ydot_init)
     dtype = getattr(value, "dtype", None)
     if dtype is None or not jnp.issubdtype(dtype, jnp.floating):
         got = type(value).__name__ if dtype is None else f"dtype {dtype}"

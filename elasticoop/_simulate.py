@@ -7,8 +7,10 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
+from ._compile_options import fast_compile_jit
 from ._custom_types import (
     ArrayInput,
     BodyScalars,
@@ -161,7 +163,8 @@ def simulate(
         y_init, ydot_init, _ = prescribed.impose(ts[0], y_init, ydot_init)
     force = check_force(forces, y_init, ydot_init, ts)
     if is_concrete(y_init):
-        model.rotation.check_regular(y_init[:, 3:], options.gimbal_tol, "y_init")
+        angles = np.asarray(y_init)[:, 3:]
+        model.rotation.check_regular(angles, options.gimbal_tol, "y_init")
 
     kw = options.kwargs()
     traj = _solve(
@@ -284,7 +287,7 @@ def _link_margin(
     return jnp.where(model.rest_length > 0, margin, jnp.inf)
 
 
-@eqx.filter_jit
+@fast_compile_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def _solve(
     model: AbstractElasticModel,

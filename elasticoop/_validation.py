@@ -24,6 +24,15 @@ def is_concrete(*xs: Any) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(xs))
 
 
+def stack(xs: Sequence[ArrayLike]) -> Array:
+    """`jnp.stack(xs)`, stacked by NumPy when every element is concrete: models are
+    built op by op, and each JAX operation outside `jit` compiles on its first use
+    (tens of milliseconds each in a fresh process)."""
+    if is_concrete(xs):
+        return jnp.asarray(np.stack([np.asarray(x) for x in xs]))
+    return jnp.stack(xs)
+
+
 def _show(value: Any) -> str:
     arr = np.asarray(value)
     if arr.size > 12:

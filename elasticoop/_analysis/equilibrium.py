@@ -6,6 +6,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
+from .._compile_options import fast_compile_jit
 from .._custom_types import ArrayInput, DofMatrix, Scalar, State
 from .._lagrange import elastic_forces
 from .._models import AbstractElasticModel
@@ -61,7 +62,7 @@ def _restricted_stiffness(
     return np.asarray(K)[np.ix_(free, free)]
 
 
-@eqx.filter_jit
+@fast_compile_jit
 def _stiffness(model: AbstractElasticModel, y: State) -> DofMatrix:
     return model.stiffness_matrix(y)
 
@@ -145,7 +146,7 @@ def static_equilibrium(
             f"(largest force imbalance {residual:.3e}); start closer to the "
             f"equilibrium or raise max_steps"
         )
-    reaction = jnp.where(mask, total, 0.0)
+    reaction = jnp.asarray(np.where(mask, np.asarray(total), 0.0))
     return Equilibrium(
         y=y,
         reaction=reaction,
@@ -174,7 +175,7 @@ def _energy(y_free: Float[Array, " free"], args: _Args) -> Scalar:
     return model.potential(y) + model.gravity_potential(y) - jnp.sum(F * y)
 
 
-@eqx.filter_jit
+@fast_compile_jit
 def _solve(
     model: AbstractElasticModel,
     y_guess: State,

@@ -541,13 +541,13 @@ class _Builder:
         prescribed motion and forces that start from it."""
         n = model.n_bodies
         mask = held_coordinates(n, None if prescribed is None else prescribed.mask)
-        applied = forces_at_start(
-            forces, float(self.ts[0]), jnp.asarray(self.y_init), n
+        applied = np.array(
+            forces_at_start(forces, float(self.ts[0]), jnp.asarray(self.y_init), n)
         )
         if self.hold_feedforward:
-            applied = applied.at[1:].set(0.0)
+            applied[1:] = 0.0
         try:
-            found = equilibrium_start(model, self.y_init, mask, applied)
+            found = equilibrium_start(model, self.y_init, mask, jnp.asarray(applied))
         except ValueError as err:
             held = "[prescribed] coordinates" if prescribed else "contact bodies"
             self.add(

@@ -1,12 +1,12 @@
 """A scenario's initial state from its static equilibrium (`[initial] from =
 "equilibrium"`), and the forces that hold the contact bodies at rest."""
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._analysis import Equilibrium, static_equilibrium
+from .._compile_options import fast_compile_jit
 from .._custom_types import State
 from .._forces import AbstractForce, pad_to_bodies
 from .._lagrange import elastic_forces
@@ -42,7 +42,7 @@ def forces_at_start(
 
 # Compiled: evaluated op by op, these would compile each small operation on its own
 # (seconds in a fresh process).
-@eqx.filter_jit
+@fast_compile_jit
 def _forces_at_rest(forces: AbstractForce, t: Array, y: State, n_bodies: int) -> State:
     at_rest = forces(t, y, jnp.zeros_like(y))
     return pad_to_bodies(jnp.asarray(at_rest), n_bodies)
@@ -68,7 +68,7 @@ def holding_forces(model: AbstractElasticModel, y: State) -> Float[Array, "m 6"]
     return _holding_forces(model, jnp.asarray(y))
 
 
-@eqx.filter_jit
+@fast_compile_jit
 def _holding_forces(model: AbstractElasticModel, y: State) -> Float[Array, "m 6"]:
     return (elastic_forces(model, y) - model.gravity_forces())[1:]
 

@@ -20,7 +20,7 @@ from .._custom_types import (
     Vector6,
 )
 from .._rotations import get_rotation
-from .._validation import as_float_array, is_concrete, require
+from .._validation import as_float_array, is_concrete, require, stack
 from .base import AbstractElasticModel
 from .immobile import check_gravity
 
@@ -221,7 +221,7 @@ class MobileModel(AbstractElasticModel):
         def stacked(field, shape):
             if not connections:
                 return jnp.zeros((0, *shape))
-            return jnp.stack([getattr(c, field) for c in connections])
+            return stack([getattr(c, field) for c in connections])
 
         self.stiffness = stacked("stiffness", (6,))
         self.damping = stacked("damping", (6,))

@@ -7,8 +7,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
+from .._compile_options import fast_compile_jit
 from .._custom_types import (
     BodyCoordinate,
     BodyCoordinates,
@@ -91,7 +92,7 @@ class AbstractRotation(eqx.Module):
         """Raise `ValueError` if a body of the concrete angles `(bodies, 3)` lies
         within `tol` of the singularity ($|$`regularity`$| <$ `tol`). The message
         names `what` (e.g. `"y_init"`) and the body (its index, or `names[i]`)."""
-        reg = np.abs(np.asarray(jax.vmap(self.regularity)(jnp.asarray(angles))))
+        reg = np.abs(np.asarray(_regularities(self, jnp.asarray(angles))))
         if np.any(reg < tol):
             i = int(np.argmin(reg))
             body = i if names is None else repr(names[i])
@@ -152,3 +153,10 @@ def rot_z(a: Scalar) -> Matrix3:
     c, s = jnp.cos(a), jnp.sin(a)
     one, zero = jnp.ones_like(a), jnp.zeros_like(a)
     return jnp.array([[c, -s, zero], [s, c, zero], [zero, zero, one]])
+
+
+@fast_compile_jit
+def _regularities(rotation: AbstractRotation, angles: Array) -> Array:
+    """`regularity` of each body, compiled: `check_regular` runs on every
+    `simulate` and scenario, where the operations one by one would each compile."""
+    return jax.vmap(rotation.regularity)(angles)

@@ -27,6 +27,7 @@ import xarray as xr
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from tqdm import tqdm
 
+from .._compile_options import fast_compile_jit
 from .._status import Status
 from .._version import __version__
 from .distributed import barrier, broadcast_from_first, gather, is_first_process
@@ -68,7 +69,7 @@ _WORK_FIXED = 64 * 1024
 _MAX_BATCHES_PER_CHUNK = 64
 
 
-@eqx.filter_jit
+@fast_compile_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def _run_batch(study: Study, mesh: Mesh, index, strata):
     # The study's arrays are traced and its structure static, so one compilation

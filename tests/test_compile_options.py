@@ -1,0 +1,62 @@
+"""The library's programs compile with `FAST_COMPILE` only where they are the
+outermost program, and the option changes no result beyond rounding."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from helpers import three_body_model, three_body_state
+
+import elasticoop as eo
+from elasticoop._compile_options import fast_compile_jit, outside_transformations
+
+
+def test_outside_transformations_is_false_under_every_transformation():
+    seen = {}
+
+    def record(x, name):
+        seen[name] = outside_transformations()
+        return x
+
+    record(1.0, "top")
+    jax.jit(lambda x: record(x, "jit"))(1.0)
+    jax.vmap(lambda x: record(x, "vmap"))(jnp.ones(2))
+    jax.grad(lambda x: record(x, "grad"))(1.0)
+    jax.jvp(lambda x: record(x, "jvp"), (1.0,), (1.0,))
+    assert seen == {
+        "top": True,
+        "jit": False,
+        "vmap": False,
+        "grad": False,
+        "jvp": False,
+    }
+
+
+def test_a_fast_compiled_function_runs_at_top_level_and_nested():
+    @fast_compile_jit
+    def cube(x):
+        return x**3
+
+    x = jnp.arange(3.0)
+    np.testing.assert_array_equal(cube(x), x**3)
+    # nested: JAX refuses compiler options on an inner jit, so none are passed
+    np.testing.assert_array_equal(jax.jit(cube)(x), x**3)
+    np.testing.assert_array_equal(jax.vmap(cube)(x), x**3)
+    np.testing.assert_array_equal(jax.grad(lambda x: cube(x).sum())(x), 3 * x**2)
+
+
+def test_the_fast_compiled_simulation_matches_one_compiled_without_options():
+    model = three_body_model()
+    y0 = three_body_state()
+    ydot0 = 0.1 * jnp.ones_like(y0)
+    ts = jnp.linspace(0.0, 0.3, 7)
+
+    def run(model):
+        return eo.simulate(model, y0, ydot0, ts, rtol=1e-10, atol=1e-12)
+
+    fast = run(model)  # outermost: compiled with FAST_COMPILE
+    plain = jax.jit(run)(model)  # inside the caller's jit: no options
+    assert int(fast.n_steps) == int(plain.n_steps)
+    # equal to rounding (the two programs differ in how XLA emits the loops)
+    for field in ("y", "ydot"):
+        a, b = np.asarray(getattr(fast, field)), np.asarray(getattr(plain, field))
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * np.max(np.abs(b)))
