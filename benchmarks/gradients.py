@@ -14,6 +14,12 @@ run's steps, so that no step is recomputed twice), `jax.grad` with `BacksolveAdj
 Times are of compiled calls, best of 7 rounds in which the forward run and
 each gradient are timed in turn; gradients are
 cross-checked against each other.
+
+Decomposition (what bounds the reverse-mode ratio): the run's steps, the vector
+field alone and with its vector-Jacobian product (evaluated inside one compiled
+loop, as in `benchmarks/rhs.py`), and the floor of a discrete adjoint that replays
+each step once: the forward run plus, per step, the Tsit5 step's 6 new stages each
+evaluated again with its vector-Jacobian product.
 """
 
 import sys
@@ -31,7 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import interleaved_best_times  # noqa: E402
 
 import elasticoop as eo  # noqa: E402
-from elasticoop import default_scenario  # noqa: E402
+from elasticoop import _simulate, default_scenario  # noqa: E402
+from elasticoop._forces import check_force  # noqa: E402
 
 
 def make_loss(scenario, adjoint):
@@ -53,6 +60,41 @@ def make_loss(scenario, adjoint):
         return jnp.sum((traj.y - target) ** 2)
 
     return loss
+
+
+def per_evaluation(scenario, n_evals: int) -> dict:
+    """Microseconds per evaluation of `simulate`'s vector field at the initial
+    state, alone and with its vector-Jacobian product with respect to the state and
+    the model, `n_evals` times inside one compiled loop."""
+    s = scenario
+    force = check_force(s.forces, s.y_init, s.ydot_init, s.ts)
+    side = jnp.ones(s.model.n_bodies)
+    args = (s.model, force, side, None, s.ts[-1])
+    x0 = _simulate._pack(s.y_init, s.ydot_init, jnp.zeros(()), jnp.zeros(()))
+    t = s.ts[0]
+
+    @jax.jit
+    def alone(x0, args):
+        def body(_, x):
+            return x + 1e-9 * _simulate._vector_field(t, x, args)
+
+        return jax.lax.fori_loop(0, n_evals, body, x0)
+
+    @jax.jit
+    def with_vjp(x0, args):
+        def body(_, x):
+            out, pullback = jax.vjp(
+                lambda x, a: _simulate._vector_field(t, x, a), x, args
+            )
+            x_bar, args_bar = pullback(out)
+            return x + 1e-9 * x_bar + 1e-12 * jnp.sum(args_bar[0].stiffness)
+
+        return jax.lax.fori_loop(0, n_evals, body, x0)
+
+    times = interleaved_best_times(
+        {"alone": (alone, (x0, args)), "with_vjp": (with_vjp, (x0, args))}, 5
+    )
+    return {k: 1e6 * v / n_evals for k, v in times.items()}
 
 
 def run(quick: bool = False) -> dict:
@@ -98,7 +140,22 @@ def run(quick: bool = False) -> dict:
             row["max_rel_diff_vs_checkpoint"] = float(
                 np.max(np.abs(g - base)) / np.max(np.abs(base))
             )
+    steps = int(
+        eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).n_steps
+    )
+    evals = per_evaluation(s, 200 if quick else 20_000)
+    floor = t_forward + steps * 6 * 1e-6 * evals["with_vjp"]
+    decomposition = {
+        "steps": steps,
+        "forward_us_per_step": 1e6 * t_forward / steps,
+        "vector_field_us": evals["alone"],
+        "vector_field_with_vjp_us": evals["with_vjp"],
+        "vjp_over_vector_field": evals["with_vjp"] / evals["alone"],
+        "replay_once_floor_ms": 1e3 * floor,
+        "replay_once_floor_over_forward": floor / t_forward,
+    }
     return {
+        "decomposition": decomposition,
         "problem": f"default scenario, {float(s.ts[-1]):.1f} s, {len(s.ts)} outputs, "
         "24 parameters (stiffness, damping), Tsit5 rtol 1e-8",
         "forward_ms": 1e3 * t_forward,
