@@ -1,4 +1,4 @@
-"""The one place where elasticoop relies on a private detail of a dependency.
+"""The places where elasticoop relies on private details of its dependencies.
 
 equinox's runtime checks (`equinox.error_if`, which diffrax, optimistix and lineax
 use inside compiled code) compile to host callbacks in equinox's default mode,
@@ -13,6 +13,12 @@ check, `equinox._errors.EQX_ON_ERROR`.
 That global exists, with this meaning, in equinox 0.11.10 to 0.13.8 (read in their
 sources; the tests exercise the installed version). Outside `SUPPORTED_EQUINOX`
 this module raises `RuntimeError` rather than guess.
+
+`outside_transformations` tells whether a JAX transformation is tracing the caller
+from the class of JAX's current trace (`jax.extend.core.find_top_trace`), whose
+name, `EvalTrace`, is not public; were it renamed, the function would answer False
+everywhere and the library's programs would compile as plain `eqx.filter_jit`
+(`tests/test_compile_options.py` checks both answers).
 """
 
 import contextlib
@@ -20,6 +26,7 @@ import re
 
 import equinox
 import jax
+import jax.extend.core
 
 # The equinox versions this module supports: from the first up to, excluding, the
 # second.
@@ -91,3 +98,9 @@ def equinox_error_mode(mode: str):
         _errors_module().EQX_ON_ERROR = previous
         if _TRACE_KEY is None:
             jax.clear_caches()
+
+
+def outside_transformations() -> bool:
+    """True when no JAX transformation (`jit`, `vmap`, `grad`, ...) is tracing the
+    caller: a program compiled from here is the outermost one."""
+    return type(jax.extend.core.find_top_trace(())).__name__ == "EvalTrace"

@@ -3,17 +3,19 @@
 In a fresh process the first `simulate` and the first scenario load are mostly XLA
 compiling (`benchmarks/latency.py`). `FAST_COMPILE` turns off XLA's CPU fusion
 emitters, so that fused loops are emitted by its older elemental emitter. On the
-default scenario (2-core x86_64 CPU) the simulation then compiles in about 1.9 s
-instead of 2.7 s and its static equilibrium in 0.75 s instead of 1.7 s, and they
-run in the same time: one forward run 22.3-22.5 ms with or without it, and
-`benchmarks/rhs.py`, `benchmarks/loop.py` and `benchmarks/montecarlo.py` agree
-within their noise. It is an option of the CPU compiler; other backends ignore it.
+default scenario (2-core x86_64 CPU) the simulation then compiled in about 1.9 s
+instead of 2.7 s and its static equilibrium in 0.75 s instead of 1.7 s, and they ran
+in the same time: one forward run 22.3-22.5 ms with or without it, and the Monte
+Carlo batch 291 vs 299 trajectories per second (`benchmarks/montecarlo.py`, 4096
+samples on one device). The option is one of the CPU compiler's.
 
 JAX accepts compiler options only on the outermost compiled program, so
 `fast_compile_jit` passes them only where its function is called outside any JAX
-transformation; inside a user's `jit`, `vmap` or `grad` the function is traced into
-the user's program, which compiles with the user's options. A user's own programs
-are never affected.
+transformation. Inside a user's `jit` the function is traced into the user's
+program, which compiles with the user's options; under `vmap` or `grad` alone it
+compiles as `eqx.filter_jit` does, with XLA's defaults. A user's own programs are
+never affected. An XLA that no longer knows the option refuses it at compile time;
+the library then compiles every program with XLA's defaults from there on.
 """
 
 import functools
@@ -21,17 +23,16 @@ from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
 import equinox as eqx
-import jax.extend.core
+import jax
+
+from ._compat import outside_transformations
 
 _Fn = TypeVar("_Fn", bound=Callable[..., Any])
 
 FAST_COMPILE: dict[str, str | bool | int] = {"xla_cpu_use_fusion_emitters": False}
 
-
-def outside_transformations() -> bool:
-    """True when no JAX transformation (`jit`, `vmap`, `grad`, ...) is tracing the
-    caller: a program compiled from here is the outermost one."""
-    return type(jax.extend.core.find_top_trace(())).__name__ == "EvalTrace"
+# False once XLA has refused the options (see the module's docstring).
+_options_known = [True]
 
 
 def fast_compile_jit(fn: _Fn) -> _Fn:
@@ -45,8 +46,13 @@ def fast_compile_jit(fn: _Fn) -> _Fn:
 
     @functools.wraps(fn)
     def call(*args: Any, **kwargs: Any) -> Any:
-        if outside_transformations():
-            return outermost(*args, **kwargs)
+        if _options_known[0] and outside_transformations():
+            try:
+                return outermost(*args, **kwargs)
+            except jax.errors.JaxRuntimeError as err:
+                if "No such compile option" not in str(err):
+                    raise
+                _options_known[0] = False
         return nested(*args, **kwargs)
 
     call.lower = outermost.lower  # type: ignore[attr-defined]  # as filter_jit's

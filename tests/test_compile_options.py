@@ -7,7 +7,9 @@ import numpy as np
 from helpers import three_body_model, three_body_state
 
 import elasticoop as eo
-from elasticoop._compile_options import fast_compile_jit, outside_transformations
+from elasticoop import _compile_options
+from elasticoop._compat import outside_transformations
+from elasticoop._compile_options import fast_compile_jit
 
 
 def test_outside_transformations_is_false_under_every_transformation():
@@ -38,10 +40,30 @@ def test_a_fast_compiled_function_runs_at_top_level_and_nested():
 
     x = jnp.arange(3.0)
     np.testing.assert_array_equal(cube(x), x**3)
-    # nested: JAX refuses compiler options on an inner jit, so none are passed
+    # nested: JAX refuses compiler options on an inner jit or under grad, so none
+    # are passed there
     np.testing.assert_array_equal(jax.jit(cube)(x), x**3)
     np.testing.assert_array_equal(jax.vmap(cube)(x), x**3)
     np.testing.assert_array_equal(jax.grad(lambda x: cube(x).sum())(x), 3 * x**2)
+
+
+def test_options_go_to_the_outermost_program_only_and_an_unknown_one_falls_back(
+    monkeypatch,
+):
+    # An option XLA does not know shows where options are passed: XLA refuses it.
+    monkeypatch.setattr(_compile_options, "FAST_COMPILE", {"xla_no_such_option": 1})
+    monkeypatch.setattr(_compile_options, "_options_known", [True])
+
+    @fast_compile_jit
+    def square(x):
+        return x**2
+
+    x = jnp.arange(3.0)
+    np.testing.assert_array_equal(jax.jit(square)(x), x**2)
+    assert _compile_options._options_known == [True]  # nested: not passed
+    np.testing.assert_array_equal(square(x), x**2)  # refused, then compiled plainly
+    assert _compile_options._options_known == [False]
+    np.testing.assert_array_equal(square(x + 1), (x + 1) ** 2)
 
 
 def test_the_fast_compiled_simulation_matches_one_compiled_without_options():
