@@ -8,13 +8,13 @@ reported). Each solver runs the library's vector field (`simulate`'s, without
 events) under a PID step-size controller with rtol from the list and
 atol = rtol / 100; the error is the largest deviation of Y (m or rad) over the
 301 output times from a reference at rtol 1e-12 (Dopri8, atol 1e-14). Wall time
-is the compiled run, best of a few. A plot is written to
+is the compiled run, best of a few rounds in which the solvers are timed in turn
+(runs over 0.5 s once). A plot is written to
 `benchmarks/work_precision.png` (full run only; the smoke size runs the default
 scenario for 0.1 s, Tsit5 and Kvaerno5 at one tolerance).
 """
 
 import sys
-import time
 from pathlib import Path
 
 import diffrax
@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _timing import best_time  # noqa: E402
+from _timing import best_time, interleaved_best_times  # noqa: E402
 from scenarios import scenarios, stiffness_ratio, vector_field  # noqa: E402
 
 PLOT = Path(__file__).resolve().parent / "work_precision.png"
@@ -66,31 +66,36 @@ def make_solve(scenario, solver, max_steps):
 
 
 def _sweep(scenario, rtols, repeats, solvers=tuple(SOLVERS)):
+    """Error, steps and wall time of every solver at every rtol. At each rtol the
+    solvers whose run takes under 0.5 s are timed in turn, `repeats` rounds (so a
+    slow spell of a shared machine hits them alike); longer runs are timed once."""
     ref, _ = make_solve(scenario, diffrax.Dopri8(), 2_000_000)(1e-12, 1e-14)
     ref = np.asarray(ref)
+    solves = {name: make_solve(scenario, SOLVERS[name](), 100_000) for name in solvers}
     rows = []
-    for name in solvers:
-        cls = SOLVERS[name]
-        solve = make_solve(scenario, cls(), 100_000)
-        for rtol in rtols:
-            args = (jnp.asarray(rtol), jnp.asarray(rtol / 100))
-            start = time.perf_counter()
-            y, steps = jax.block_until_ready(solve(*args))
-            first = time.perf_counter() - start  # compiles at the first rtol only
+    for rtol in rtols:
+        args = (jnp.asarray(rtol), jnp.asarray(rtol / 100))
+        runs, once = {}, {}
+        for name, solve in solves.items():
+            runs[name] = jax.block_until_ready(solve(*args))  # compiles at first
+            once[name] = best_time(solve, *args, repeats=1)
+            steps = int(runs[name][1])
+            print(f"  {name} rtol {rtol:.0e}: {steps} steps", file=sys.stderr)
+        short = {n: (solves[n], args) for n in solves if once[n] < 0.5}
+        wall = {**once, **interleaved_best_times(short, repeats)}
+        for name, (y, steps) in runs.items():
             err = float(np.max(np.abs(np.asarray(y) - ref)))
-            # Long runs are timed once: their timing noise is small anyway.
-            wall = best_time(solve, *args, repeats=repeats if first < 0.5 else 1)
-            print(f"  {name} rtol {rtol:.0e}: {int(steps)} steps", file=sys.stderr)
             rows.append(
                 {
                     "solver": name,
                     "rtol": rtol,
                     "steps": int(steps),
                     "error": err if np.isfinite(err) else None,
-                    "wall_ms": 1e3 * wall,
+                    "wall_ms": 1e3 * wall[name],
                 }
             )
-    return rows
+    order = {name: i for i, name in enumerate(solvers)}
+    return sorted(rows, key=lambda r: order[r["solver"]])  # stable: rtols in order
 
 
 def plot(results, path=PLOT):
@@ -145,7 +150,7 @@ def run(quick: bool = False, make_plot: bool | None = None) -> dict:
             scenario = eqx.tree_at(lambda s: s.ts, scenario, scenario.ts[:11])
         out[key] = {
             "stiffness_ratio": stiffness_ratio(scenario),
-            "rows": _sweep(scenario, rtols, 1 if quick else 3, solvers),
+            "rows": _sweep(scenario, rtols, 1 if quick else 5, solvers),
         }
     if make_plot if make_plot is not None else not quick:
         out["plot"] = plot(out)
