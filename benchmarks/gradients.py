@@ -11,9 +11,10 @@ smoke size), as a function of all stiffness and damping parameters
 diffrax from `max_steps`, 446 for 100 000; and `checkpoints=2048`, more than the
 run's steps, so that no step is recomputed twice), `jax.grad` with `BacksolveAdjoint`
 (if diffrax accepts it here), and `jax.jacfwd` with `ForwardMode` (24 tangents).
-Times are of compiled calls, best of 7 rounds in which the forward run and
-each gradient are timed in turn; gradients are
-cross-checked against each other. Batch: the forward run and the default
+Scratch memory: XLA's temporary buffers of each compiled gradient (what the
+checkpoints cost). Times are of compiled calls, best of 7 rounds in which the
+forward run and each gradient are timed in turn; gradients are cross-checked
+against each other. Batch: the forward run and the default
 gradient `vmap`-ped over 8 parameter sets, time per sample (not at smoke size).
 
 Decomposition (what bounds the reverse-mode ratio): the run's steps; the vector
@@ -249,7 +250,17 @@ def run(quick: bool = False) -> dict:
             continue
         calls[name] = (fn, (params,))
         grads[name] = np.concatenate([np.ravel(x) for x in g])
-        rows.append({"method": name, "first_call_s": time.perf_counter() - start})
+        first = time.perf_counter() - start
+        memory = fn.lower(params).compile().memory_analysis()
+        rows.append(
+            {
+                "method": name,
+                "first_call_s": first,
+                "scratch_mb": None
+                if memory is None
+                else memory.temp_size_in_bytes / 1e6,
+            }
+        )
     times = interleaved_best_times(calls, rounds)
     t_forward = times["forward"]
     for row in rows:
