@@ -11,19 +11,22 @@ smoke size), as a function of all stiffness and damping parameters
 diffrax from `max_steps`, 446 for 100 000; and `checkpoints=2048`, more than the
 run's steps, so that no step is recomputed twice), `jax.grad` with `BacksolveAdjoint`
 (if diffrax accepts it here), and `jax.jacfwd` with `ForwardMode` (24 tangents).
-Scratch memory: XLA's temporary buffers of each compiled gradient (what the
-checkpoints cost). Times are of compiled calls, best of 7 rounds in which the
-forward run and each gradient are timed in turn; gradients are cross-checked
-against each other. Batch: the forward run and the default
-gradient `vmap`-ped over 8 parameter sets, time per sample (not at smoke size).
+Scratch memory: XLA's temporary buffers of each compiled gradient (the difference
+between the two checkpoint counts is what the checkpoints cost). Times are of
+compiled calls, best of 7 rounds in which the forward run, each gradient and the
+decomposition's loops are timed in turn; gradients are cross-checked against each
+other. Batch: the forward run and the default gradient `vmap`-ped over 8 parameter
+sets, time per sample, best of 3 rounds (not at smoke size).
 
 Decomposition (what bounds the reverse-mode ratio): the run's steps; the vector
 field alone and with its vector-Jacobian product, evaluated inside one compiled
-loop at the run's own output times and states; two floors from these per-call
-costs, over the accepted steps: an adjoint that keeps each step's stage values
-(the forward run plus 6 products per step) and one that replays each step once
-(6 more evaluations per step); and, measured, the backward pass of the plainest
-replaying discrete adjoint (`stepwise_backward`).
+loop at the run's own output times and states; the floor these per-call costs
+set for any adjoint that takes, for each accepted step, the products of its 6
+evaluated stages (the forward run plus 6 products per accepted step: a product
+evaluates its stage too, so replaying the step within it costs nothing more); and,
+measured, the backward pass of the plainest such adjoint (`stepwise_backward`),
+whose time per step beyond its 6 products is the cost of the step's own
+arithmetic and of the loop.
 """
 
 import sys
@@ -45,15 +48,27 @@ from elasticoop import _simulate, default_scenario  # noqa: E402
 from elasticoop._forces import check_force  # noqa: E402
 
 
+def parameters(model):
+    """The 24 parameters differentiated: `(stiffness, damping)`."""
+    return (model.stiffness, model.damping)
+
+
+def with_parameters(model, params):
+    return eqx.tree_at(lambda m: (m.stiffness, m.damping), model, params)
+
+
+def max_rel_diff(g, base) -> float:
+    return float(np.max(np.abs(g - base)) / np.max(np.abs(base)))
+
+
 def make_loss(scenario, adjoint):
     s = scenario
     target = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).y
     target = target + 1e-3  # a target the parameters do not reach
 
     def loss(params):
-        model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
         traj = eo.simulate(
-            model,
+            with_parameters(s.model, params),
             s.y_init,
             s.ydot_init,
             s.ts,
@@ -74,33 +89,31 @@ def field_of_parameters(scenario):
     side = jnp.ones(s.model.n_bodies)
 
     def field(t, x, params):
-        model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
+        model = with_parameters(s.model, params)
         return _simulate._vector_field(t, x, (model, force, side, None, s.ts[-1]))
 
     return field
 
 
-def per_evaluation(scenario, n_evals: int) -> dict:
-    """Microseconds per evaluation of `simulate`'s vector field, alone and with its
-    vector-Jacobian product with respect to the state and the 24 parameters, each
-    `n_evals` times inside one compiled loop.
+def per_evaluation(scenario, traj, n_evals: int) -> dict:
+    """Compiled loops of `n_evals` evaluations of `simulate`'s vector field, alone
+    (`alone`) and with its vector-Jacobian product with respect to the state and
+    the 24 parameters (`with_vjp`), as `{name: (fn, args)}`.
 
-    Evaluation k is at output k (modulo their number) of the scenario's own run:
-    its time and state, nudged by the previous result so that no evaluation repeats
-    another. (At one fixed time, as an earlier version measured, the product read
-    3.4-3.6 us against 4.8-5.2 us here, the vector field 1.1 against 1.4 us: what
-    depends on the time alone, such as the force's reference motion, is then
-    computed once, outside the loop, which the solve never can.)"""
-    s = scenario
-    field = field_of_parameters(s)
-    traj = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces)
+    Evaluation k is at output k (modulo their number) of the scenario's own run
+    `traj`: its time and state, nudged by the previous result so that no evaluation
+    repeats another, and the product's cotangent is the next output's state. (At
+    one fixed time, as an earlier version measured, the product read 3.4-3.6 us
+    against 4.8-5.2 us here, the vector field 1.1 against 1.4 us: what depends on
+    the time alone, such as the force's reference motion, is then computed once,
+    outside the loop, which the solve never can.)"""
+    field = field_of_parameters(scenario)
     times = traj.ts
     states = jax.vmap(_simulate._pack)(traj.y, traj.ydot, traj.work, traj.dissipated)
-    params = (s.model.stiffness, s.model.damping)
+    n = times.shape[0]
 
     def at(k, previous):
-        k = k % times.shape[0]
-        return times[k], states[k] + 1e-12 * previous
+        return times[k % n], states[k % n] + 1e-12 * previous
 
     @jax.jit
     def alone(params):
@@ -116,38 +129,37 @@ def per_evaluation(scenario, n_evals: int) -> dict:
             x_bar, acc = carry
             t, x = at(k, x_bar)
             _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
-            x_bar, p_bar = pullback(jnp.ones_like(x))
+            x_bar, p_bar = pullback(states[(k + 1) % n])
             return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
 
         return jax.lax.fori_loop(
             0, n_evals, body, (jnp.zeros_like(states[0]), jnp.zeros(()))
         )
 
-    per_call = interleaved_best_times(
-        {"alone": (alone, (params,)), "with_vjp": (with_vjp, (params,))}, 5
-    )
-    return {k: 1e6 * v / n_evals for k, v in per_call.items()}
+    args = (parameters(scenario.model),)
+    return {"alone": (alone, args), "with_vjp": (with_vjp, args)}
 
 
-def stepwise_backward(scenario, rounds: int) -> dict:
-    """The backward pass of the plainest discrete adjoint, measured: given the run's
-    accepted steps (times and states, from `diffrax.diffeqsolve` with the same
-    vector field and controller), one `jax.lax.while_loop` from the last step to
-    the first applies the vector-Jacobian product of each Tsit5 step (diffrax's
-    tableau, unrolled) to the state's cotangent and adds up the 24 parameters'
-    cotangents. Each step is replayed once from its stored start (its 7 stages,
-    the first recomputed), and each stage, under `jax.checkpoint`, is evaluated
-    again with its product (54 against 67 us per step for the product of the
-    whole step). No step-size control, outputs or stop conditions: what is left of
-    a replaying discrete adjoint once everything but the steps is taken away."""
+def stepwise_backward(scenario):
+    """The backward pass of the plainest discrete adjoint, as `(fn, args)` and the
+    run's accepted steps. Given those steps (times and states, from
+    `diffrax.diffeqsolve` with the same vector field and controller), one
+    `jax.lax.while_loop` from the last step to the first applies the
+    vector-Jacobian product of each Tsit5 step (diffrax's tableau, unrolled) to
+    the state's cotangent and adds up the 24 parameters' cotangents. The product
+    of a step replays it from its stored start: its 6 evaluated stages (the first
+    recomputed, since the step before's last stage is not kept; the 7th is not
+    needed, the step's result being the last stage's input), each under
+    `jax.checkpoint`, so that it is evaluated again with its product (in one
+    earlier run 54 against 67 us per step without `jax.checkpoint`). No step-size
+    control, outputs or stop conditions: a replaying discrete adjoint with
+    everything but the steps taken away."""
     s = scenario
     field = field_of_parameters(s)
-    params = (s.model.stiffness, s.model.damping)
     tableau = diffrax.Tsit5.tableau
     a = [tuple(float(v) for v in row) for row in tableau.a_lower]
     c = tuple(float(v) for v in tableau.c)
-
-    stage = jax.checkpoint(field)  # each stage replayed with its product
+    stage = jax.checkpoint(field)
 
     def step(x0, params, t0, h):
         ks = [stage(t0, x0, params)]
@@ -155,10 +167,9 @@ def stepwise_backward(scenario, rounds: int) -> dict:
             x = x0 + h * sum(coef * k for coef, k in zip(row, ks, strict=True))
             if i < len(a) - 1:
                 ks.append(stage(t0 + c[i] * h, x, params))
-        return x  # the last stage's input is the step's result (FSAL)
+        return x  # the last row of a is b: the last stage's input is the result
 
     x0 = _simulate._pack(s.y_init, s.ydot_init, jnp.zeros(()), jnp.zeros(()))
-    max_steps = 4096
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field),
         diffrax.Tsit5(),
@@ -166,10 +177,10 @@ def stepwise_backward(scenario, rounds: int) -> dict:
         s.ts[-1],
         None,
         x0,
-        params,
+        parameters(s.model),
         saveat=diffrax.SaveAt(t0=True, steps=True),
-        stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-10),
-        max_steps=max_steps,
+        stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-10),  # simulate's
+        max_steps=4096,
     )
     n = int(sol.stats["num_accepted_steps"])
     ts, xs = sol.ts, sol.ys
@@ -188,32 +199,28 @@ def stepwise_backward(scenario, rounds: int) -> dict:
             lambda carry: carry[0] >= 0, body, (n - 1, jnp.ones_like(x0), zeros)
         )
 
-    seconds = interleaved_best_times({"backward": (backward, (params,))}, rounds)
-    return {
-        "accepted_steps": n,
-        "seconds": seconds["backward"],
-        "us_per_step": 1e6 * seconds["backward"] / n,
-    }
+    return (backward, (parameters(s.model),)), n
 
 
 def batched(scenario, width: int, rounds: int) -> dict:
     """Forward run and default reverse-mode gradient `vmap`-ped over `width`
     parameter sets (the scenario's, then stiffness and damping scaled by 1.00 to
-    1.05, fixed seed): time per sample and their ratio. Also returns the first
-    sample's gradient (the scenario's own parameters), to cross-check."""
+    1.05, fixed seed): time per sample and their ratio, best of `rounds` rounds.
+    Also returns the first sample's gradient (the scenario's own parameters), to
+    cross-check."""
     loss = make_loss(scenario, None)
-    params = (scenario.model.stiffness, scenario.model.damping)
     scale = 1 + 0.05 * jax.random.uniform(jax.random.key(0), (width, 1, 1))
     scale = scale.at[0].set(1.0)
-    sets = tuple(p[None] * scale for p in params)
+    sets = tuple(p[None] * scale for p in parameters(scenario.model))
     forward = jax.jit(jax.vmap(loss))
     gradient = jax.jit(jax.vmap(jax.grad(loss)))
-    first = jax.block_until_ready(gradient(sets))
     times = interleaved_best_times(
         {"forward": (forward, (sets,)), "gradient": (gradient, (sets,))}, rounds
     )
+    first = gradient(sets)
     return {
         "width": width,
+        "rounds": rounds,
         "forward_ms_per_sample": 1e3 * times["forward"] / width,
         "gradient_ms_per_sample": 1e3 * times["gradient"] / width,
         "over_forward": times["gradient"] / times["forward"],
@@ -225,7 +232,7 @@ def run(quick: bool = False) -> dict:
     s = default_scenario()
     if quick:
         s = eqx.tree_at(lambda sc: sc.ts, s, s.ts[:11])
-    params = (s.model.stiffness, s.model.damping)
+    params = parameters(s.model)
     rounds = 1 if quick else 7
     forward = jax.jit(make_loss(s, diffrax.RecursiveCheckpointAdjoint()))
     variants = {
@@ -261,6 +268,11 @@ def run(quick: bool = False) -> dict:
                 else memory.temp_size_in_bytes / 1e6,
             }
         )
+    # The decomposition's loops, timed in the same rounds as the forward run.
+    traj = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces)
+    n_evals = 200 if quick else 20_000
+    calls.update(per_evaluation(s, traj, n_evals))
+    calls["stepwise_backward"], accepted = stepwise_backward(s)
     times = interleaved_best_times(calls, rounds)
     t_forward = times["forward"]
     for row in rows:
@@ -271,35 +283,30 @@ def run(quick: bool = False) -> dict:
     for row in rows:
         g = grads.get(row["method"])
         if g is not None and base is not None:
-            row["max_rel_diff_vs_checkpoint"] = float(
-                np.max(np.abs(g - base)) / np.max(np.abs(base))
-            )
+            row["max_rel_diff_vs_checkpoint"] = max_rel_diff(g, base)
     batch = {}
     if not quick:
         batch = batched(s, 8, 3)
-        g = batch.pop("first_sample_gradient")
-        batch["max_rel_diff_vs_checkpoint"] = float(
-            np.max(np.abs(g - base)) / np.max(np.abs(base))
+        batch["max_rel_diff_vs_checkpoint"] = max_rel_diff(
+            batch.pop("first_sample_gradient"), base
         )
-    steps = int(
-        eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).n_steps
-    )
-    evals = per_evaluation(s, 200 if quick else 20_000)
-    backward = stepwise_backward(s, rounds)
-    vjps = backward["accepted_steps"] * 6 * 1e-6 * evals["with_vjp"]
-    replay = backward["accepted_steps"] * 6 * 1e-6 * evals["alone"]
+    steps = int(traj.n_steps)
+    vf_us = 1e6 * times["alone"] / n_evals
+    vjp_us = 1e6 * times["with_vjp"] / n_evals
+    products = accepted * 6 * 1e-6 * vjp_us
+    backward = times["stepwise_backward"]
     decomposition = {
         "steps": steps,
-        "accepted_steps": backward["accepted_steps"],
+        "accepted_steps": accepted,
         "forward_us_per_step": 1e6 * t_forward / steps,
-        "vector_field_us": evals["alone"],
-        "vector_field_with_vjp_us": evals["with_vjp"],
-        "vjp_over_vector_field": evals["with_vjp"] / evals["alone"],
-        "no_replay_floor_over_forward": (t_forward + vjps) / t_forward,
-        "replay_once_floor_over_forward": (t_forward + replay + vjps) / t_forward,
-        "stepwise_backward_ms": 1e3 * backward["seconds"],
-        "stepwise_backward_us_per_step": backward["us_per_step"],
-        "forward_plus_stepwise_backward_over_forward": (t_forward + backward["seconds"])
+        "vector_field_us": vf_us,
+        "vector_field_with_vjp_us": vjp_us,
+        "vjp_over_vector_field": vjp_us / vf_us,
+        "stage_products_us_per_step": 6 * vjp_us,
+        "products_floor_over_forward": (t_forward + products) / t_forward,
+        "stepwise_backward_ms": 1e3 * backward,
+        "stepwise_backward_us_per_step": 1e6 * backward / accepted,
+        "forward_plus_stepwise_backward_over_forward": (t_forward + backward)
         / t_forward,
     }
     return {
