@@ -165,6 +165,8 @@ def simulate(
     if is_concrete(y_init):
         angles = np.asarray(y_init)[:, 3:]
         model.rotation.check_regular(angles, options.gimbal_tol, "y_init")
+        if isinstance(model, MobileModel) and model.n_connections > 0:
+            _check_links_open(model, y_init, options.link_tol)
 
     kw = options.kwargs()
     traj = _solve(
@@ -287,6 +289,24 @@ def _link_margin(
     return jnp.where(model.rest_length > 0, margin, jnp.inf)
 
 
+def _check_links_open(model: MobileModel, y_init: State, link_tol: float) -> None:
+    """Raise `ValueError` if a link of the concrete `y_init` starts at or below
+    the collapse threshold: the stop condition fires only when a link falls
+    through it, so a run started below it would go on unchecked."""
+    margin = np.asarray(_link_margin(model, jnp.asarray(y_init), link_tol))
+    if np.any(margin <= 0):
+        k = int(np.argmin(margin))
+        i, j = (int(v) for v in model.pairs[k])
+        length = float(np.asarray(model.link_lengths(jnp.asarray(y_init)))[k])
+        rest = float(np.asarray(model.rest_length)[k])
+        raise ValueError(
+            f"y_init: connection {k} between bodies {i} and {j} starts collapsed: "
+            f"|r_i - r_j| = {length:.6g} m is not above link_tol x rest length = "
+            f"{link_tol:g} x {rest:.6g} m (its deflection has no direction at zero "
+            f"length); separate the bodies, or lower link_tol"
+        )
+
+
 @fast_compile_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def _solve(
@@ -309,8 +329,9 @@ def _solve(
 ) -> Trajectory:
     # Starts that are not simulated (only possible when traced; concrete ones are
     # refused by `simulate`): NaN or inf in the initial state, a start at the
-    # singularity, or before the force samples. Each is flagged, and a regular,
-    # finite state stands in for the one solver step taken, so a batch stays finite.
+    # singularity, with a link collapsed, or before the force samples. Each is
+    # flagged, and a regular, finite state stands in for the one solver step taken,
+    # so a batch stays finite.
     start_finite = jnp.isfinite(y_init).all(axis=1) & jnp.isfinite(ydot_init).all(
         axis=1
     )
@@ -322,7 +343,13 @@ def _solve(
         before_samples0 = jnp.array(False)
     else:
         before_samples0 = ts[0] < interval[0]
-    halt = nonfinite0 | singular0 | before_samples0
+    if isinstance(model, MobileModel) and model.n_connections > 0:
+        margin0 = _link_margin(model, y_init, link_tol)
+        collapsed0 = ~nonfinite0 & ~singular0 & jnp.any(margin0 <= 0)
+        shortest0 = jnp.argmin(margin0)
+    else:
+        collapsed0, shortest0 = jnp.array(False), jnp.asarray(-1)
+    halt = nonfinite0 | singular0 | collapsed0 | before_samples0
     # The signed measure keeps its initial sign until the singularity is crossed,
     # so `side * measure - tol` changes sign even when one step jumps the band.
     side = jnp.where(reg0 < 0, -1.0, 1.0)
@@ -434,6 +461,7 @@ def _solve(
         [
             nonfinite0,
             singular0,
+            collapsed0,
             before_samples0,
             hits["gimbal"],
             hits.get("collapse", no_hit),
@@ -445,6 +473,7 @@ def _solve(
         [
             Status.NONFINITE,
             Status.GIMBAL_LOCK,
+            Status.LINK_COLLAPSED,
             Status.OUTSIDE_FORCE_SAMPLES,
             Status.GIMBAL_LOCK,
             Status.LINK_COLLAPSED,
@@ -472,6 +501,7 @@ def _solve(
         [
             nonfinite0,
             singular0,
+            collapsed0,
             hits["gimbal"],
             hits.get("collapse", no_hit),
             status == Status.NONFINITE,
@@ -479,6 +509,7 @@ def _solve(
         [
             jnp.argmax(~start_finite),
             jnp.argmin(jnp.abs(reg0)),
+            shortest0,
             jnp.argmin(side * _regularity(model, y_end)),
             worst_link,
             bad_body,

@@ -109,23 +109,33 @@ def test_sampled_forces_with_jumps_and_ends_before_the_run():
 def test_gimbal_lock_and_collapsed_link_in_a_batch():
     # two bodies rushing together through a link of rest length 0.1 m (collapses
     # at the fast speeds), both spinning about their x axis (gimbal lock at the
-    # fast spin)
+    # fast spin); the last pair starts collapsed (not simulated)
     bodies = [eo.RigidBody(1.0, (0.1, 0.1, 0.1))] * 2
     link = eo.Connection(0, 1, [100.0] * 6, [0.0] * 6, rest_length=0.1)
     model = eo.MobileModel(bodies, [link], gravity=0.0)
-    y0 = jnp.array([[0.05, 0, 0, *UP], [-0.05, 0, 0, *UP]])
 
-    def run(speed, spin, batch_loop):
+    def run(speed, spin, gap, batch_loop):
+        y0 = jnp.array([[0.0, 0, 0, *UP], [0.0, 0, 0, *UP]])
+        y0 = y0.at[0, 0].set(gap / 2).at[1, 0].set(-gap / 2)
         ydot0 = jnp.zeros_like(y0).at[0, 0].set(-speed / 2).at[1, 0].set(speed / 2)
         ydot0 = ydot0.at[:, 4].set(spin)
         return run_tight(model, y0, ydot0, 0.3, throw=False, batch_loop=batch_loop)
 
-    speeds = jnp.array([2.0, 0.5, 0.5])
-    spins = jnp.array([0.0, 0.0, 8.0])
-    plain, loop = _both(run, speeds, spins)
-    statuses = [eo.Status.LINK_COLLAPSED, 0, eo.Status.GIMBAL_LOCK]
+    speeds = jnp.array([2.0, 0.5, 0.5, 0.5])
+    spins = jnp.array([0.0, 0.0, 8.0, 0.0])
+    gaps = jnp.array([0.1, 0.1, 0.1, 0.0])
+    plain, loop = _both(run, speeds, spins, gaps)
+    collapsed = eo.Status.LINK_COLLAPSED
+    statuses = [collapsed, 0, eo.Status.GIMBAL_LOCK, collapsed]
     np.testing.assert_array_equal(plain.status, statuses)
+    np.testing.assert_array_equal(plain.event_index, [0, -1, 0, 0])
+    assert float(plain.event_time[3]) == 0.0
     _assert_same(plain, loop)
+    # the lanes that ran are those of a batch without the collapsed start
+    three = jax.vmap(lambda *a: run(*a, batch_loop=True))(
+        speeds[:3], spins[:3], gaps[:3]
+    )
+    np.testing.assert_array_equal(loop.y[:3], three.y)
 
 
 @pytest.mark.slow

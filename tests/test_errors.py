@@ -220,6 +220,53 @@ def test_collapsed_link_raises():
     np.testing.assert_allclose(float(traj.event_time), t_hit, rtol=1e-8)
 
 
+def _link_pair(rho: float):
+    """Two free bodies joined by one link of rest length `rho` along x."""
+    bodies = [eo.RigidBody(1.0, (0.1, 0.1, 0.1))] * 2
+    link = eo.Connection(
+        0, 1, stiffness=[100.0] * 6, damping=[0.0] * 6, rest_length=rho
+    )
+    return eo.MobileModel(bodies, [link], gravity=0.0)
+
+
+def _pair_state(separation):
+    return jnp.array([[0.0, 0, 0, *UP], [0.0, 0, 0, *UP]]).at[1, 0].set(separation)
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.5])
+def test_link_collapsed_at_the_start_is_refused(fraction):
+    """The collapse condition fires only when a link falls through its threshold:
+    a start at or below it (here on top of each other, and at half the threshold)
+    is refused, not simulated with a spring that has no direction."""
+    rho = 0.1
+    y0 = _pair_state(fraction * eo.LINK_TOL * rho)
+    with pytest.raises(
+        ValueError,
+        match=r"y_init: connection 0 between bodies 0 and 1 starts collapsed",
+    ):
+        run_tight(_link_pair(rho), y0, jnp.zeros_like(y0), 0.1)
+
+
+def test_link_collapsed_at_the_start_is_flagged_when_traced():
+    """Traced, the start is not simulated: status LINK_COLLAPSED at ts[0] with the
+    link's index, as a traced start at gimbal lock is flagged."""
+    model = _link_pair(0.1)
+
+    @jax.jit
+    def run(separation):
+        y0 = _pair_state(separation)
+        traj = run_tight(model, y0, jnp.zeros_like(y0), 0.1, throw=False)
+        return traj.status, traj.event_index, traj.event_time, traj.y
+
+    status, index, t_event, y = run(0.0)
+    assert int(status) == eo.Status.LINK_COLLAPSED
+    assert int(index) == 0 and float(t_event) == 0.0
+    assert np.all(np.isnan(np.asarray(y)))
+    status, index, _, y = run(0.1)  # at rest length: nothing moves
+    assert int(status) == eo.Status.SUCCESS and int(index) == -1
+    np.testing.assert_allclose(y[-1], _pair_state(0.1), rtol=0, atol=1e-12)
+
+
 def test_zero_rest_length_link_passes_through_zero_smoothly():
     c, m = 100.0, 1.0
     bodies = [eo.RigidBody(m, (0.1, 0.1, 0.1))] * 2
