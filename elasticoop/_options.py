@@ -42,6 +42,12 @@ def _positive(value, name: str, owner: str) -> float:
     return number
 
 
+def check_initial_step(dt0, owner: str) -> None:
+    """Refuse an initial step `dt0` that is not `None` or a positive number."""
+    if dt0 is not None:
+        _positive(dt0, "dt0", owner)
+
+
 def _show_integer(value: numbers.Integral) -> str:
     """An integer as written, or its sign and number of digits when it is long."""
     text = str(int(value))
@@ -59,13 +65,14 @@ class SimulationOptions(eqx.Module):
 
     - `solver`: a diffrax solver, or its name in `SOLVERS` (`"tsit5"`, the default,
       `"dopri5"`, `"dopri8"`, `"bosh3"`, `"heun"`, `"kvaerno3"`, `"kvaerno5"`).
-    - `rtol`, `atol`: tolerances of the adaptive step-size controller (> 0).
+    - `rtol`, `atol`: tolerances of the adaptive step-size controller (> 0;
+      `rtol` < 1).
     - `max_steps`: the most solver steps a run may take, an integer from 1 to
       `MAX_STEPS_LIMIT` ($2^{31} - 1$).
     - `gimbal_tol`: a run stops when a body's $|\\sin\\theta|$ (ZXZ) or
-      $|\\cos(\\text{pitch})|$ (RPY) falls below this.
+      $|\\cos(\\text{pitch})|$ (RPY) falls below this (in (0, 1)).
     - `link_tol`: a run stops when a link of rest length $\\rho_0 > 0$ shrinks to
-      $|r_i - r_j| <$ `link_tol` $\\rho_0$.
+      $|r_i - r_j| <$ `link_tol` $\\rho_0$ (in (0, 1)).
     - `owner`: the name used in error messages (`"simulate"`, `"Study"`, ...).
     """
 
@@ -91,6 +98,18 @@ class SimulationOptions(eqx.Module):
             )
         for name in ("rtol", "atol", "gimbal_tol", "link_tol"):
             _positive(getattr(self, name), name, self.owner)
+        # Fractions: |sin theta| and |cos pitch| are at most 1, and a link at or
+        # below `link_tol` x its rest length counts as collapsed.
+        for name, meaning in (
+            ("rtol", "a relative error"),
+            ("gimbal_tol", "a threshold on |sin theta| or |cos pitch|"),
+            ("link_tol", "a fraction of the rest length"),
+        ):
+            value = float(getattr(self, name))
+            if not value < 1:
+                raise ValueError(
+                    f"{self.owner}.{name} must be below 1 ({meaning}), got {value!r}"
+                )
         steps = self.max_steps
         if isinstance(steps, bool) or not isinstance(steps, numbers.Integral):
             raise ValueError(

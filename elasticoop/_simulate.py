@@ -32,7 +32,7 @@ from ._integration import integrate, result_code
 from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
-from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
+from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions, check_initial_step
 from ._status import Status, status_message
 from ._step_control import MIN_STEP_ULPS, StopFailedSteps
 from ._trajectory import Trajectory
@@ -99,7 +99,7 @@ def simulate(
       as `diffrax.Dopri8()` stay faster than implicit ones even for stiff grasps).
     - `rtol`, `atol`: tolerances of the adaptive step-size controller.
     - `max_steps`: the most steps the solver may take.
-    - `dt0`: initial step (default: chosen by diffrax).
+    - `dt0`: initial step, a positive number (default: chosen by diffrax).
     - `adjoint`: diffrax adjoint for reverse-mode gradients (default
       `RecursiveCheckpointAdjoint`).
     - `throw`: `None` (default) raises `SimulationError` for an early stop when the
@@ -146,6 +146,8 @@ def simulate(
         gimbal_tol,
         link_tol,
     )
+    if is_concrete(dt0):
+        check_initial_step(dt0, "simulate")
     n = model.n_bodies
     # Traced non-finite states are reported in `Trajectory.status`, lane by lane.
     y_init = jnp.asarray(as_float_array(y_init, "y_init", (n, 6), check_traced=False))

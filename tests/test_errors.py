@@ -140,6 +140,15 @@ BAD_SIMULATE = {
         r"y_init: body 1 starts at gimbal lock",
     ),
     "rtol": (dict(rtol=-1.0), "rtol must be a positive number"),
+    "rtol 1": (dict(rtol=1.0), r"simulate.rtol must be below 1 \(a relative error\)"),
+    "gimbal_tol": (dict(gimbal_tol=2.0), r"simulate.gimbal_tol must be below 1"),
+    "link_tol": (dict(link_tol=1.5), r"simulate.link_tol must be below 1"),
+    "dt0 negative": (
+        dict(dt0=-0.1),
+        "simulate.dt0 must be a positive number, got -0.1",
+    ),
+    "dt0 zero": (dict(dt0=0.0), "simulate.dt0 must be a positive number, got 0.0"),
+    "dt0 nan": (dict(dt0=float("nan")), "simulate.dt0 must be a positive number"),
     "model": (dict(model="beam"), "model must be an ImmobileModel or MobileModel"),
 }
 
