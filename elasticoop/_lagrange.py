@@ -35,6 +35,7 @@ the structure of the problem is used to keep the derivatives cheap:
 """
 
 import functools
+import inspect
 from collections.abc import Callable, Iterable
 from typing import Any, TypeVar, cast
 
@@ -55,6 +56,8 @@ from ._custom_types import (
 )
 from ._mass_blocks import FactoredMassBlocks
 from ._models import AbstractElasticModel
+from ._options import GIMBAL_TOL
+from ._validation import as_float_array, is_concrete
 
 _COORDINATES = range(6)
 _BLOCKS = ((0, 1, 2), (3, 4, 5))  # translations, Euler angles
@@ -179,19 +182,30 @@ def _ldl_solve3(
     return x1, x2, x3
 
 
-def _compiled(term: _Term) -> _Term:
+def _compiled(term: _Term, solves: bool = False) -> _Term:
     """`term(model, *arrays)` as one compiled program per model structure and shape.
 
     Called outside `jit` (an analysis, a notebook cell), a term would otherwise run
     op by op, compiling each operation on its first use; inside a trace the call is
-    inlined. The arrays are converted first, so that a nested list is data, not a
-    static argument of the program.
+    inlined. The arrays, each `(bodies, 6)`, are checked and converted to float64
+    first (an error names the function's argument; traced ones are checked for
+    shape only), so that a nested list is data, not a static argument of the
+    program. A term that `solves` with $W$ refuses a concrete $Y$ at gimbal lock,
+    where $W$ is singular.
     """
     jitted = eqx.filter_jit(term)
+    names = [f"{term.__name__}.{p}" for p in inspect.signature(term).parameters][1:]
 
     @functools.wraps(term)
     def compiled(model: AbstractElasticModel, *arrays: Any) -> Any:
-        return jitted(model, *(jnp.asarray(a) for a in arrays))
+        shape = (model.n_bodies, 6)
+        checked = [
+            as_float_array(a, name, shape, check_traced=False)
+            for name, a in zip(names, arrays, strict=False)
+        ]
+        if solves and checked and is_concrete(checked[0]):
+            model.rotation.check_regular(checked[0][:, 3:], GIMBAL_TOL, names[0])
+        return jitted(model, *(jnp.asarray(a) for a in checked))
 
     return cast(_Term, compiled)
 
@@ -259,7 +273,7 @@ def _entries(W: FactoredMassBlocks) -> _Blocks:
     return {(i, k): W.entry(i, k) for block in _BLOCKS for i in block for k in block}
 
 
-@_compiled
+@functools.partial(_compiled, solves=True)
 def accelerations(
     model: AbstractElasticModel, y: StateLike, ydot: StateLike, applied: StateLike
 ) -> tuple[State, State]:

@@ -111,6 +111,7 @@ def test_bad_model_input_raises_clear_error(case):
 MODEL = three_body_model()
 Y = three_body_state()
 TS = jnp.linspace(0.0, 0.1, 5)
+Z = jnp.zeros((3, 6))
 
 BAD_SIMULATE = {
     "y_init shape": (dict(y_init=Y[:2]), r"y_init must have shape \(3, 6\)"),
@@ -302,3 +303,48 @@ def test_traced_bad_value_raises_at_run_time():
         jax.jit(lambda m: eo.RigidBody(m, (1.0, 1.0, 1.0)).mass)(
             -1.0
         ).block_until_ready()
+
+
+BAD_DYNAMICS = {
+    "applied of one row": (
+        lambda: eo.accelerations(MODEL, Y, Z, jnp.ones(6)),
+        r"accelerations.applied must have shape \(3, 6\), got shape \(6,\)",
+    ),
+    "flat state": (
+        lambda: eo.elastic_forces(MODEL, np.zeros(18)),
+        r"elastic_forces.y must have shape \(3, 6\), got shape \(18,\)",
+    ),
+    "rates not finite": (
+        lambda: eo.velocity_terms(MODEL, Y, Z.at[0, 0].set(np.nan)),
+        "velocity_terms.ydot must be finite",
+    ),
+    "text": (
+        lambda: eo.damping_forces(MODEL, Y, "fast"),
+        "damping_forces.ydot must be an array of numbers",
+    ),
+    "stiffness of a flat state": (
+        lambda: MODEL.stiffness_matrix(np.zeros((2, 6))),
+        r"MobileModel.stiffness_matrix.y must have shape \(3, 6\), got shape \(2, 6\)",
+    ),
+    "gimbal lock": (
+        lambda: eo.accelerations(MODEL, Y.at[2, 4].set(0.0), Z, Z),
+        r"accelerations.y: body 2 starts at gimbal lock",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_DYNAMICS))
+def test_bad_dynamics_input_raises_clear_error(case):
+    call, match = BAD_DYNAMICS[case]
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def test_dynamics_terms_convert_to_float64():
+    """Integer and float32 states are converted, not passed on: the terms are
+    float64 and equal to those of the float64 state."""
+    y = np.rint(np.asarray(Y) * 4) / 4  # exactly representable in both
+    for state in (y.astype(np.float32), y.tolist()):
+        W = eo.mass_matrix(MODEL, state)
+        assert W.dtype == jnp.float64
+        np.testing.assert_array_equal(W, eo.mass_matrix(MODEL, y))

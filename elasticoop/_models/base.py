@@ -85,7 +85,9 @@ class AbstractElasticModel(eqx.Module):
         )
 
     @abc.abstractmethod
-    def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
+    def stiffness_matrix(
+        self, y: Float[ArrayLike, "bodies 6"] | None = None
+    ) -> DofMatrix:
         """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))`."""
 
     def stiffness_rank(self, y: Float[ArrayLike, "bodies 6"] | None = None) -> int:

@@ -3,6 +3,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._body import RigidBody, stack_bodies
 from .._custom_types import ArrayInput, DofMatrix, Scalar, State
@@ -115,6 +116,8 @@ class ImmobileModel(AbstractElasticModel):
     def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
         return autodiff_restoring_forces(self, y, ydot)
 
-    def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
+    def stiffness_matrix(
+        self, y: Float[ArrayLike, "bodies 6"] | None = None
+    ) -> DofMatrix:
         """K (constant for this model; `y` may be omitted)."""
         return self.K

@@ -299,7 +299,9 @@ class MobileModel(AbstractElasticModel):
 
         return per_body(elastic), per_body(damping)
 
-    def stiffness_matrix(self, y: State | None = None) -> DofMatrix:
+    def stiffness_matrix(
+        self, y: Float[ArrayLike, "bodies 6"] | None = None
+    ) -> DofMatrix:
         """$\\partial^2 \\Pi/\\partial Y^2$ at `y`, shape `(6(m+1), 6(m+1))` (it
         depends on the configuration: `y` is required)."""
         if y is None:
@@ -307,6 +309,9 @@ class MobileModel(AbstractElasticModel):
                 "MobileModel.stiffness_matrix needs a configuration y: the "
                 "stiffness of Appendix B depends on it"
             )
+        y = as_float_array(
+            y, "MobileModel.stiffness_matrix.y", (self.n_bodies, 6), check_traced=False
+        )
         return _potential_hessian(self, jnp.asarray(y))
 
     def connection_wrench(self, y: State) -> Float[Array, "connections 6"]:
