@@ -3,7 +3,7 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ._custom_types import BodyCoordinate, BodyCoordinates, BodyState
 from ._rotations import AbstractRotation
@@ -37,18 +37,33 @@ class RigidBody(eqx.Module):
         inertia = require(
             inertia, inertia > 0, "RigidBody.inertia must be positive", inertia
         )
-        a, b, c = inertia[0], inertia[1], inertia[2]
-        slack = _TRIANGLE_RTOL * (a + b + c)
-        triangle = (a + b + slack >= c) & (b + c + slack >= a) & (c + a + slack >= b)
         inertia = require(
             inertia,
-            triangle,
+            _triangle(inertia),
             "RigidBody.inertia violates the triangle inequality "
             "(A + B >= C, B + C >= A, C + A >= B)",
             inertia,
         )
         self.mass = jnp.asarray(mass)
         self.inertia = jnp.asarray(inertia)
+
+    def admissible(self) -> Bool[Array, ""]:
+        """Whether every body passes the checks of construction (masses and
+        principal moments positive, the triangle inequalities): for bodies whose
+        values were changed afterwards (`eqx.tree_at`, a Monte Carlo draw)."""
+        return (
+            jnp.all(self.mass > 0)
+            & jnp.all(self.inertia > 0)
+            & jnp.all(_triangle(self.inertia))
+        )
+
+
+def _triangle(inertia):
+    """$A + B \\ge C$, $B + C \\ge A$, $C + A \\ge B$ for `inertia` `(..., 3)`,
+    within `_TRIANGLE_RTOL` of $A + B + C$."""
+    a, b, c = inertia[..., 0], inertia[..., 1], inertia[..., 2]
+    slack = _TRIANGLE_RTOL * (a + b + c)
+    return (a + b + slack >= c) & (b + c + slack >= a) & (c + a + slack >= b)
 
 
 def stack_bodies(bodies) -> RigidBody:

@@ -348,3 +348,36 @@ def test_dynamics_terms_convert_to_float64():
         W = eo.mass_matrix(MODEL, state)
         assert W.dtype == jnp.float64
         np.testing.assert_array_equal(W, eo.mass_matrix(MODEL, y))
+
+
+def test_admissible_repeats_the_checks_of_construction():
+    """`admissible` is false exactly where a constructor would refuse the values
+    (for models changed by `eqx.tree_at`, which no constructor checks), traced
+    or not."""
+    import equinox as eqx
+
+    assert bool(MODEL.admissible())
+    inertia, stiffness = MODEL.bodies.inertia, MODEL.stiffness
+    changes = {
+        "negative mass": (lambda m: m.bodies.mass, MODEL.bodies.mass.at[1].set(-0.3)),
+        "zero moment": (lambda m: m.bodies.inertia, inertia.at[0, 2].set(0.0)),
+        "triangle": (lambda m: m.bodies.inertia, inertia.at[0].set([0.01, 0.02, 0.04])),
+        "negative stiffness": (lambda m: m.stiffness, stiffness.at[1, 3].set(-1.0)),
+        "negative damping": (lambda m: m.damping, MODEL.damping.at[0, 0].set(-1e-3)),
+        "negative gravity": (lambda m: m.gravity, jnp.asarray(-9.81)),
+    }
+    admissible = jax.jit(lambda m: m.admissible())
+    for name, (where, value) in changes.items():
+        changed = eqx.tree_at(where, MODEL, value)
+        assert not bool(changed.admissible()), name
+        assert not bool(admissible(changed)), name
+    K = np.diag(np.r_[np.zeros(6), np.full(6, 100.0)])
+    y0 = np.tile([0.0, 0, 0, *UP], (2, 1))
+    immobile = eo.ImmobileModel([BODY] * 2, K, 0.1 * K, y0)
+    assert bool(immobile.admissible())
+    indefinite = K.copy()
+    indefinite[6, 6] = -1.0
+    asymmetric = K + np.eye(12, k=1)
+    for bad in (indefinite, asymmetric):
+        changed = eqx.tree_at(lambda m: m.K, immobile, jnp.asarray(bad))
+        assert not bool(changed.admissible())

@@ -317,6 +317,46 @@ def test_failing_samples_are_counted_and_others_unaffected(results):
 
 
 @pytest.mark.slow
+def test_draws_no_constructor_accepts_are_invalid_samples():
+    """A negative mass or a negative stiffness drawn is not simulated (it ran, and
+    counted as a success): `INVALID_SAMPLE`, NaN outputs, the values drawn kept,
+    and the other samples as in a study of their values alone."""
+    params = [
+        mc.Parameter("mass", lambda m: m.bodies.mass, mc.Normal((2.0, 0.3, 0.25), 0.2)),
+        mc.Parameter(
+            "stiffness", lambda m: m.stiffness, mc.Normal(1.0, 0.6), relative=True
+        ),
+    ]
+    ds = mc.run_study(
+        _study(params, n_samples=16), batch_width=BATCH_WIDTH, progress=False
+    )
+    mass, stiffness = ds["mass"].values, ds["stiffness"].values
+    bad = np.any(mass <= 0, axis=1) | np.any(stiffness < 0, axis=(1, 2))
+    assert bad.any() and (~bad).any()
+    status = ds["status"].values
+    np.testing.assert_array_equal(status[bad], mc.INVALID_SAMPLE)
+    np.testing.assert_array_equal(status[~bad], eo.Status.SUCCESS)
+    assert np.all(np.isnan(ds["peak_force"].values[bad]))
+    # the values drawn are recorded, as `sample_parameters` gives them (to the
+    # last bits: another compiled program)
+    drawn = mc.sample_parameters(_study(params, n_samples=16))
+    np.testing.assert_allclose(mass, drawn["mass"], rtol=1e-14)
+    np.testing.assert_allclose(stiffness, drawn["stiffness"], rtol=1e-14)
+    # a valid sample is what `simulate` gives for its values
+    k = int(np.flatnonzero(~bad)[0])
+    model = eqx.tree_at(
+        lambda m: (m.bodies.mass, m.stiffness),
+        three_body_model(),
+        (jnp.asarray(mass[k]), jnp.asarray(stiffness[k])),
+    )
+    y0 = three_body_state()
+    traj = eo.simulate(model, y0, jnp.zeros_like(y0), TS, forces=_lift())
+    np.testing.assert_allclose(
+        ds["peak_force"].values[k], mc.peak_elastic_force()(traj), rtol=1e-12
+    )
+
+
+@pytest.mark.slow
 def test_sensitivities_match_finite_differences():
     params = [
         mc.Parameter(

@@ -6,7 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._body import RigidBody, kinetic_energy
 from .._custom_types import DofMatrix, Scalar, State
@@ -29,6 +29,21 @@ class AbstractElasticModel(eqx.Module):
     bodies: eqx.AbstractVar[RigidBody]
     gravity: eqx.AbstractVar[Scalar]
     convention: eqx.AbstractVar[str]
+
+    @abc.abstractmethod
+    def elastic_admissible(self) -> Bool[Array, ""]:
+        """Whether the elastic parameters pass the checks of construction."""
+
+    def admissible(self) -> Bool[Array, ""]:
+        """Whether the parameters pass the checks of construction (bodies,
+        $g \\ge 0$, the elastic parameters), traced or not: for a model whose
+        values were changed afterwards (`eqx.tree_at`, a Monte Carlo draw), which
+        no constructor has checked."""
+        return (
+            self.bodies.admissible()
+            & jnp.all(self.gravity >= 0)
+            & self.elastic_admissible()
+        )
 
     @abc.abstractmethod
     def potential(self, y: State) -> Scalar:

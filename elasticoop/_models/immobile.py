@@ -3,7 +3,7 @@
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._body import RigidBody, stack_bodies
 from .._custom_types import ArrayInput, DofMatrix, Scalar, State
@@ -21,9 +21,7 @@ def check_symmetric_psd(matrix, name: str):
     $\\max|M - M^T| \\le$ `SYMMETRY_RTOL` $\\max|M|$ and smallest eigenvalue of
     $(M + M^T)/2$ $\\ge$ -`PSD_RTOL` $\\max|M|$. A concrete matrix that fails is
     reported with the offending value and the bound."""
-    np_ = xp(matrix)
-    scale = np_.maximum(np_.max(np_.abs(matrix)), 1e-300)
-    asym = np_.max(np_.abs(matrix - matrix.T))
+    scale, asym, low = _asymmetry_and_lowest_eigenvalue(matrix)
     symmetric = asym <= SYMMETRY_RTOL * scale
     if is_concrete(symmetric) and not bool(symmetric):
         raise ValueError(
@@ -32,8 +30,6 @@ def check_symmetric_psd(matrix, name: str):
             f"{SYMMETRY_RTOL * float(scale):.3g} allowed)"
         )
     matrix = require(matrix, symmetric, f"{name} must be symmetric")
-    eig = np_.linalg.eigvalsh(0.5 * (matrix + matrix.T))
-    low = np_.min(eig) if eig.size else np_.zeros(())
     semidefinite = low >= -PSD_RTOL * scale
     if is_concrete(semidefinite) and not bool(semidefinite):
         raise ValueError(
@@ -42,6 +38,23 @@ def check_symmetric_psd(matrix, name: str):
             f"{-PSD_RTOL * float(scale):.3g} allowed)"
         )
     return require(matrix, semidefinite, f"{name} must be positive semidefinite")
+
+
+def _asymmetry_and_lowest_eigenvalue(matrix):
+    """$(\\max|M|, \\max|M - M^T|$, the smallest eigenvalue of $(M + M^T)/2)$ (the
+    largest entry floored at 1e-300)."""
+    np_ = xp(matrix)
+    scale = np_.maximum(np_.max(np_.abs(matrix)), 1e-300)
+    asym = np_.max(np_.abs(matrix - matrix.T))
+    eig = np_.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    low = np_.min(eig) if eig.size else np_.zeros(())
+    return scale, asym, low
+
+
+def symmetric_psd(matrix) -> Bool[Array, ""]:
+    """Whether `matrix` passes `check_symmetric_psd`, traced or not."""
+    scale, asym, low = _asymmetry_and_lowest_eigenvalue(jnp.asarray(matrix))
+    return jnp.asarray((asym <= SYMMETRY_RTOL * scale) & (low >= -PSD_RTOL * scale))
 
 
 def check_stiffness(K, n_bodies: int):
@@ -115,6 +128,10 @@ class ImmobileModel(AbstractElasticModel):
 
     def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
         return autodiff_restoring_forces(self, y, ydot)
+
+    def elastic_admissible(self) -> Bool[Array, ""]:
+        """K and D symmetric positive semidefinite."""
+        return symmetric_psd(self.K) & symmetric_psd(self.D)
 
     def stiffness_matrix(
         self, y: Float[ArrayLike, "bodies 6"] | None = None

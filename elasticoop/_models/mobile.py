@@ -8,7 +8,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._body import RigidBody, stack_bodies
 from .._custom_types import (
@@ -298,6 +298,14 @@ class MobileModel(AbstractElasticModel):
             return functools.reduce(operator.add, terms)
 
         return per_body(elastic), per_body(damping)
+
+    def elastic_admissible(self) -> Bool[Array, ""]:
+        """Stiffness, damping and rest lengths >= 0."""
+        return (
+            jnp.all(self.stiffness >= 0)
+            & jnp.all(self.damping >= 0)
+            & jnp.all(self.rest_length >= 0)
+        )
 
     def stiffness_matrix(
         self, y: Float[ArrayLike, "bodies 6"] | None = None

@@ -452,27 +452,33 @@ def _check_labelled(what: str, dims, shape, labels: dict) -> None:
 def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dict:
     """Draw, simulate and reduce sample `index`: its record (sample number,
     status, event time, parameter values, outputs). A sample whose draws are not
-    finite is simulated at the nominal values and reported as `INVALID_SAMPLE`.
-    `batch_loop`: passed to `simulate` (a `vmap` over samples integrates them in
-    one loop)."""
+    finite, or give a model that no constructor would accept (a mass, a principal
+    moment or, for the mobile model, a stiffness, damping or rest length out of
+    range: `AbstractElasticModel.admissible`), is simulated at the nominal values
+    and reported as `INVALID_SAMPLE`, with the values drawn. `batch_loop`: passed to
+    `simulate` (a `vmap` over samples integrates them in one loop)."""
     raw = draw(study, index, strata_row)
-    finite = jnp.array(True)
+    valid = jnp.array(True)
     for value in raw.values():
-        finite = finite & jnp.all(jnp.isfinite(value))
+        valid = valid & jnp.all(jnp.isfinite(value))
+    drawn = study.inputs
+    for p in study.parameters:
+        drawn = p.apply(drawn, raw[p.name])
+    valid = valid & drawn.model.admissible()
     inputs, values = study.inputs, {}
     for p in study.parameters:
         fallback = 1.0 if p.relative else p.nominal(study.inputs)
-        inputs = p.apply(inputs, jnp.where(finite, raw[p.name], fallback))
-        values[p.name] = jnp.where(finite, p.nominal(inputs), raw[p.name])
+        inputs = p.apply(inputs, jnp.where(valid, raw[p.name], fallback))
+        values[p.name] = jnp.where(valid, p.nominal(inputs), p.nominal(drawn))
     traj = study.simulate(inputs, batch_loop=batch_loop)
     outputs = {
-        name: jnp.where(finite, out(traj), jnp.nan)
+        name: jnp.where(valid, out(traj), jnp.nan)
         for name, out in study.outputs.items()
     }
     return {
         "sample": jnp.asarray(index, jnp.int64),
-        "status": jnp.where(finite, traj.status, INVALID_SAMPLE).astype(jnp.int32),
-        "event_time": jnp.where(finite, traj.event_time, jnp.nan),
+        "status": jnp.where(valid, traj.status, INVALID_SAMPLE).astype(jnp.int32),
+        "event_time": jnp.where(valid, traj.event_time, jnp.nan),
         **values,
         **outputs,
     }
