@@ -267,6 +267,31 @@ def test_failing_trial_step_is_shortened_not_fatal():
     assert float(result.model.stiffness[0, 4]) < 10.0
 
 
+@pytest.mark.slow
+def test_plain_optimiser_with_tiny_steps_is_not_converged():
+    """Adam's steps are its learning rate: at 1e-9, below xtol, every step is
+    "small" although the start is far from the optimum. The fit must say so
+    (stalled, the gradient named), not report convergence."""
+    model, y0 = _two_body()
+    rates = np.zeros((2, 6))
+    rates[1, 4] = 2.0
+    traj = eo.simulate(model, y0, rates, TS_SMALL)
+    e = Experiment(TS_SMALL, traj.y, y0, rates)
+    start = eqx.tree_at(STIFFNESS, model, 0.5 * model.stiffness)
+    result = identify(
+        start,
+        e,
+        STIFFNESS,
+        init="model",
+        method=optax.adam(1e-9),
+        max_steps=5,
+        progress=False,
+    )
+    assert not result.converged
+    assert result.status == "stalled"
+    assert "the gradient is not small" in result.reason
+
+
 # --- bad input ----------------------------------------------------------------
 
 

@@ -103,7 +103,11 @@ def identify(
     - `xtol`, `ftol`: the fit has converged after an accepted step that changes
       no entry of $u$ by more than `xtol` (for log-parameters: a relative change),
       or lowers the loss by at most `ftol` times the loss; or when a dozen trial
-      steps in a row, in an ever smaller trust region, find no lower loss.
+      steps in a row, in an ever smaller trust region, find no lower loss. A plain
+      optax optimiser (no line search), whose steps its learning rate sets, has
+      converged only where no entry of the loss's gradient in $u$ exceeds
+      `PLAIN_GTOL` (1e-6) times the loss as well; otherwise it stops as
+      `"stalled"`.
     - `progress`: print iteration, loss and gradient norm while fitting.
     - `solver`, `sim_rtol`, `sim_atol`, `max_sim_steps`, `gimbal_tol`, `link_tol`:
       passed to `simulate` (as `solver`, `rtol`, `atol`, `max_steps`, ...).

@@ -53,6 +53,12 @@ TAU = 1e-3
 MAX_REJECTIONS = 12
 # Halvings of an optax update whose loss is not finite before giving up.
 MAX_HALVINGS = 30
+# A plain optimiser (no line search) takes steps set by its learning rate, so a
+# small step is no sign of an optimum by itself: it has converged only where, in
+# addition, no entry of the loss's gradient in u exceeds this fraction of the loss
+# (for log-parameters: a 1 % change of any parameter changes the loss by at most
+# 1e-8 of itself, to first order).
+PLAIN_GTOL = 1e-6
 
 
 @dataclasses.dataclass
@@ -500,6 +506,19 @@ def optax_minimise(
         u = u_new
         if not linesearch:
             value, grad = value_new, grad_new
+        if done and not linesearch:
+            slope = float(np.max(np.abs(np.asarray(grad)))) / max(
+                abs(float(value)), np.finfo(float).tiny
+            )
+            if slope > PLAIN_GTOL:
+                trace.status = "stalled"
+                trace.reason = (
+                    f"the last step was below xtol = {xtol} or ftol = {ftol}, but the "
+                    f"gradient is not small (its largest entry is {slope:.3g} times "
+                    f"the loss, above {PLAIN_GTOL:g}): the optimiser's steps are set "
+                    f"by its learning rate; raise it, or use the default method"
+                )
+                break
         if done:
             trace.status = "converged"
             trace.reason = f"last step below xtol = {xtol} or ftol = {ftol}"
