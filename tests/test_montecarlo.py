@@ -239,6 +239,26 @@ def test_latin_hypercube_hits_every_stratum_once():
     np.testing.assert_array_equal(strata, np.repeat(np.arange(n)[:, None], 12, 1))
 
 
+@pytest.mark.parametrize(
+    "low, high",
+    [(8.0, np.inf), (1.08, np.inf), (2.0, 2.5), (-np.inf, -7.0), (-1.0, 2.0)],
+)
+def test_truncated_normal_inverse_cdf_in_both_tails(low, high):
+    """The inverse CDF against SciPy's `truncnorm` on 2001 quantiles, in the upper
+    tail too (there Phi(low) is close to 1: the draws were almost all inf at 8
+    standard deviations above the mean)."""
+    from scipy import stats
+
+    u = (np.arange(2001) + 0.5) / 2001
+    mean, std = 1.0, 0.01
+    d = mc.TruncatedNormal(mean, std, low=mean + low * std, high=mean + high * std)
+    x = np.asarray(d.ppf(jnp.asarray(u)))
+    expected = mean + std * stats.truncnorm(low, high).ppf(u)
+    reach = max(abs(b) for b in (low, high, 1.0) if np.isfinite(b))
+    np.testing.assert_allclose(x, expected, rtol=0, atol=1e-13 * std * reach)
+    assert np.all(np.diff(x) > 0)
+
+
 def test_store_resume_and_loader(study, results, tmp_path):
     store = tmp_path / "study"
     ran = []

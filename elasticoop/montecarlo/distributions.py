@@ -129,7 +129,9 @@ class TruncatedNormal(AbstractInverseCDFDistribution):
     """$\\mathcal N(\\mu, \\sigma^2)$ conditioned on $[\\text{low}, \\text{high}]$:
     $x = \\mu + \\sigma\\,\\Phi^{-1}\\big(\\Phi(a) + u\\,(\\Phi(b) - \\Phi(a))\\big)$,
     $a = (\\text{low} - \\mu)/\\sigma$, $b = (\\text{high} - \\mu)/\\sigma$ (use
-    `-inf`/`inf` for a one-sided truncation)."""
+    `-inf`/`inf` for a one-sided truncation); for $a > 0$ the same draw by the
+    mirror image, $x = \\mu - \\sigma\\,\\Phi^{-1}\\big(\\Phi(-b) + (1 - u)
+    (\\Phi(-a) - \\Phi(-b))\\big)$, which keeps its digits in the upper tail."""
 
     mean: jax.Array
     std: jax.Array
@@ -151,9 +153,19 @@ class TruncatedNormal(AbstractInverseCDFDistribution):
         _check(self.high > self.low, "TruncatedNormal needs high > low", (low, high))
 
     def ppf(self, u):
-        a = jss.ndtr((self.low - self.mean) / self.std)
-        b = jss.ndtr((self.high - self.mean) / self.std)
-        x = self.mean + self.std * jss.ndtri(a + u * (b - a))
+        alpha = (self.low - self.mean) / self.std
+        beta = (self.high - self.mean) / self.std
+        # Above the mean, Phi(a) is close to 1 and a + u (Phi(b) - Phi(a)) loses
+        # the digits that tell the draws apart (low = mean + 8 std: almost all inf):
+        # there the mirror image, -Z conditioned on [-b, -a], is drawn with 1 - u,
+        # from the small values Phi(-b) and Phi(-a).
+        upper = alpha > 0
+        lo = jnp.where(upper, -beta, alpha)
+        hi = jnp.where(upper, -alpha, beta)
+        v = jnp.where(upper, 1 - u, u)
+        p_lo, p_hi = jss.ndtr(lo), jss.ndtr(hi)
+        z = jss.ndtri(p_lo + v * (p_hi - p_lo))
+        x = self.mean + self.std * jnp.where(upper, -z, z)
         return jnp.clip(x, self.low, self.high)
 
     def describe(self):
