@@ -330,14 +330,19 @@ def _float64(value: ArrayInput) -> Float[Array, "..."]:
 class PoseTracking(AbstractForce):
     """Manipulators as PD controllers on the grasp poses plus a weight feedforward.
 
-    Grasp body $i$ is driven towards $Y_{i}^{ref}(t) = Y_{i}(0) + h\\,s(t/T)\\,e_z$
-    ($s$ the minimum-jerk profile, its rate by forward-mode autodiff):
+    Grasp body $i$ is driven towards
+    $Y_{i}^{ref}(t) = Y_{i}(t_0) + h\\,s\\big((t - t_0)/T\\big)\\,e_z$
+    ($s$ the minimum-jerk profile, its rate by forward-mode autodiff; $t_0$ =
+    `start`, the time the lift begins, 0 by default):
     $F_i = F^{ff} + K_p (Y_i^{ref} - Y_i) + K_d (\\dot Y_i^{ref} - \\dot Y_i)$,
     gains per coordinate (translations [N/m], Euler angles [N m/rad]).
 
-    Every field is stored as a float64 array, whatever it is given as (Python
-    numbers or lists too): the force is then a pytree of arrays that can be
-    differentiated, `vmap`-ped and batched like any other input.
+    **Fields:** `y_ref` the grasps' poses $Y_i(t_0)$ and `feedforward` $F^{ff}$,
+    both `(m, 6)`; `kp`, `kd` `(6,)`; `height` $h$ [m]; `duration` $T > 0$ [s];
+    `start` $t_0$ [s]. Every field is stored as a float64 array, whatever it is
+    given as (Python numbers or lists too), and checked when concrete: the force
+    is then a pytree of arrays that can be differentiated, `vmap`-ped and batched
+    like any other input.
     """
 
     y_ref: Float[Array, "m 6"] = eqx.field(converter=_float64)  # initial poses
@@ -346,11 +351,28 @@ class PoseTracking(AbstractForce):
     kd: Float[Array, "6"] = eqx.field(converter=_float64)
     height: Scalar = eqx.field(converter=_float64)
     duration: Scalar = eqx.field(converter=_float64)
+    start: Scalar = eqx.field(converter=_float64, default=0.0)
+
+    def __check_init__(self):
+        m = self.y_ref.shape[0] if self.y_ref.ndim == 2 else None
+        fields = ("y_ref", "feedforward", "kp", "kd", "height", "duration", "start")
+        shapes = ((m, 6), (m, 6), (6,), (6,), (), (), ())
+        for name, shape in zip(fields, shapes, strict=True):
+            # shapes always; finite values where concrete
+            as_float_array(
+                getattr(self, name), f"PoseTracking.{name}", shape, check_traced=False
+            )
+        if is_concrete(self.duration) and not float(self.duration) > 0:
+            raise ValueError(
+                f"PoseTracking.duration must be > 0 [s], got {float(self.duration)!r}"
+            )
 
     def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
         lift = jnp.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
         s, rate = jax.jvp(
-            lambda t: minimum_jerk(t / self.duration), (t,), (jnp.ones_like(t),)
+            lambda t: minimum_jerk((t - self.start) / self.duration),
+            (t,),
+            (jnp.ones_like(t),),
         )
         ref = self.y_ref + self.height * s * lift
         ref_rate = self.height * rate * lift

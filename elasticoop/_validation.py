@@ -71,7 +71,8 @@ def as_float_array(
             s is None or s == a for s, a in zip(shape, arr.shape)
         )
         if not ok:
-            want = "(" + ", ".join("any" if s is None else str(s) for s in shape) + ")"
+            axes = ["any" if s is None else str(s) for s in shape]
+            want = f"({axes[0]},)" if len(axes) == 1 else "(" + ", ".join(axes) + ")"
             raise ValueError(f"{name} must have shape {want}, got shape {arr.shape}")
     if isinstance(arr, np.ndarray):
         # concrete input: validate with NumPy (no JAX dispatch or compilation)

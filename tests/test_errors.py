@@ -49,7 +49,7 @@ BAD_INPUTS = {
     ),
     "stiffness shape": (
         lambda: eo.Connection(0, 1, stiffness=[1.0] * 5, damping=[0.0] * 6),
-        r"stiffness must have shape \(6\)",
+        r"stiffness must have shape \(6,\), got shape \(5,\)",
     ),
     "inf damping": (
         lambda: eo.Connection(0, 1, stiffness=[1.0] * 6, damping=[np.inf] + [0.0] * 5),
@@ -381,3 +381,41 @@ def test_admissible_repeats_the_checks_of_construction():
     for bad in (indefinite, asymmetric):
         changed = eqx.tree_at(lambda m: m.K, immobile, jnp.asarray(bad))
         assert not bool(changed.admissible())
+
+
+def _pose_tracking(**change):
+    fields = dict(
+        y_ref=np.asarray(Y)[1:],
+        feedforward=np.zeros((2, 6)),
+        kp=np.full(6, 100.0),
+        kd=np.full(6, 1.0),
+        height=0.1,
+        duration=1.0,
+    )
+    return eo.PoseTracking(**(fields | change))
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(kp=np.full(3, 1e3)), r"PoseTracking.kp must have shape \(6,\)"),
+        (
+            dict(feedforward=np.zeros((3, 6))),
+            r"PoseTracking.feedforward must have shape \(2, 6\)",
+        ),
+        (dict(y_ref=np.zeros(6)), r"PoseTracking.y_ref must have shape \(any, 6\)"),
+        (dict(height=np.nan), "PoseTracking.height must be finite"),
+        (dict(duration=0.0), r"PoseTracking.duration must be > 0 \[s\], got 0.0"),
+        (dict(duration=-0.2), r"PoseTracking.duration must be > 0 \[s\], got -0.2"),
+    ],
+)
+def test_bad_pose_tracking_is_named(change, match):
+    with pytest.raises(ValueError, match=match):
+        _pose_tracking(**change)
+
+
+def test_pose_tracking_is_still_built_under_jit():
+    """Traced fields are checked for shape only: a force built inside `jit` (a
+    batch of gains, say) is accepted."""
+    force = jax.jit(lambda kp: _pose_tracking(kp=kp))(jnp.full(6, 50.0))
+    np.testing.assert_array_equal(force.kp, 50.0)

@@ -275,3 +275,27 @@ def test_rank_correlations_rank_what_the_output_follows():
     assert rho.sel(parameter="a") == pytest.approx(1.0)
     assert rho.sel(parameter="b[0]") == pytest.approx(1 - 6 * 14 / (5 * 24))
     assert rho.attrs["n"] == 5
+
+
+def test_time_and_solver_overrides_are_checked_and_followed(tmp_path):
+    """A `[time]` span beyond the scenario's force samples and a step budget above
+    the limit are problems of the file (they raised inside the study), and a study
+    that starts later starts its pose-tracking lift later too."""
+    tail = (
+        '[[parameters]]\nquantity = "mass"\ndistribution = "lognormal"\n'
+        'relative_spread = 0.1\n[[outputs]]\nquantity = "final_pose_error"\n'
+    )
+    sampled = 'scenario = "hanging_object"\n[sampling]\nsamples = 2\n'
+    path = _write(tmp_path, sampled + "[time]\nstop = 5.0\n" + tail)
+    with pytest.raises(StudyFileError) as info:
+        load_study(path)
+    assert {(p.table, p.key) for p in info.value.problems} == {("[time]", "stop")}
+    assert "outside the scenario's force samples" in str(info.value)
+    lift = 'scenario = "beam_lift"\n[sampling]\nsamples = 2\n'
+    path = _write(tmp_path, lift + "[solver]\nmax_steps = 1099511627776\n" + tail)
+    with pytest.raises(StudyFileError, match="less than or equal to 2147483647"):
+        load_study(path)
+    path = _write(tmp_path, lift + "[time]\nstart = 0.5\n" + tail)
+    study = load_study(path).study
+    assert float(study.ts[0]) == 0.5
+    assert float(study.inputs.forces.start) == 0.5

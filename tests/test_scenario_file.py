@@ -515,3 +515,46 @@ def test_default_scenario_comes_from_the_packaged_file():
     # the feedforward is an equal share of the total weight
     total = float(jnp.sum(s.model.bodies.mass))
     np.testing.assert_allclose(s.forces.feedforward[:, 2], 0.5 * total * 9.81)
+
+
+def test_pose_tracking_lift_begins_at_the_first_time(tmp_path):
+    """With `[time] start = 1`, the minimum-jerk lift starts at t = 1 s: at the
+    start the reference is the initial pose, so the force is the feedforward alone
+    (the clock ran from t = 0, and the grasps were jerked by a lift already 0.104 m
+    up); halfway through the lift, the reference is up by half its height and
+    rises at 15/8 h/T (the minimum-jerk rate at s = 1/2)."""
+    from elasticoop._examples import example_files
+
+    text = example_files()["beam_lift"].read_text()
+    text = text.replace("start = 0.0    # [s]", "start = 1.0").replace(
+        "stop = 3.0     # [s]", "stop = 4.0"
+    )
+    s = load_scenario(write(tmp_path, text))
+    force = s.forces
+    assert float(force.start) == 1.0 and float(s.ts[0]) == 1.0
+    at_start = force(s.ts[0], s.y_init, s.ydot_init)
+    np.testing.assert_array_equal(at_start, force.feedforward)
+    halfway = force(jnp.asarray(2.0), s.y_init, s.ydot_init)
+    h, T = 0.2, 2.0
+    expected = force.kp[2] * h / 2 + force.kd[2] * 15 / 8 * h / T
+    np.testing.assert_allclose(
+        halfway[:, 2] - force.feedforward[:, 2], expected, rtol=1e-12
+    )
+
+
+def test_entries_of_the_wrong_kind_are_named(tmp_path, capsys):
+    """An entry of `connections` that is not a table, and an empty K, are problems
+    of the file (they raised AttributeError and a reshape error)."""
+    not_a_table = TINY.replace('name = "tiny"', 'name = "tiny"\nconnections = [7]')
+    block = TINY[TINY.index("[[connections]]") : TINY.index("[initial.obj]")]
+    _check_rejected(
+        tmp_path,
+        capsys,
+        not_a_table.replace(block, ""),
+        "[[connections]] #1",
+        "",
+        "valid dictionary",
+    )
+    _data_files(tmp_path)
+    empty = IMMOBILE.replace('K = "K.csv"', "K = []")
+    _check_rejected(tmp_path, capsys, empty, "[immobile]", "K", "is empty")

@@ -308,6 +308,9 @@ class _Builder:
             except ValueError as err:
                 self.add("[immobile]", key, str(err))
                 return None
+        if not value:
+            self.add("[immobile]", key, "is empty (give the matrix's rows)")
+            return None
         rows = {len(r) for r in value}
         if len(rows) > 1:
             self.add("[immobile]", key, "rows have different lengths")
@@ -352,7 +355,8 @@ class _Builder:
         for k, c in enumerate(conns):
             table = _array_label("connections", k, self.raw["connections"][k])
             if c is None:
-                raw_bodies = self.raw["connections"][k].get("bodies")
+                entry = self.raw["connections"][k]
+                raw_bodies = entry.get("bodies") if isinstance(entry, dict) else None
                 if isinstance(raw_bodies, list):
                     for b in raw_bodies:
                         if isinstance(b, str) and b not in self.index:
@@ -487,6 +491,7 @@ class _Builder:
             kd=jnp.asarray(pose.kd),
             height=jnp.asarray(pose.lift_height, dtype=jnp.float64),
             duration=jnp.asarray(pose.lift_time, dtype=jnp.float64),
+            start=jnp.asarray(self.ts[0] if self.ts is not None else 0.0),
         )
 
     def prescribed(self):

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
-from .._forces import PoseTracking
+from .._forces import PoseTracking, sampled_interval
 from .._models import MobileModel
 from .._naming import coordinate_names
 from .._scenario import Scenario
@@ -293,6 +293,22 @@ class _StudyBuilder:
                 ts = np.linspace(start, stop, n)
         solver = self.s.get("solver")
         changes: dict[str, Any] = {"ts": jnp.asarray(ts)}
+        interval = sampled_interval(scenario.forces)
+        if interval is not None:
+            lo, hi = (float(t) for t in interval)
+            for key, t in (("start", ts[0]), ("stop", ts[-1])):
+                if not lo <= t <= hi:
+                    self.add(
+                        "[time]",
+                        key,
+                        f"{t} s is outside the scenario's force samples, which cover "
+                        f"[{lo}, {hi}] s (samples are not extrapolated)",
+                    )
+        if isinstance(scenario.forces, PoseTracking):
+            # the lift begins where the study's runs begin
+            changes["forces"] = dataclasses.replace(
+                scenario.forces, start=jnp.asarray(float(ts[0]))
+            )
         if solver is not None:
             changes |= {k: v for k, v in solver.model_dump().items() if v is not None}
         return dataclasses.replace(scenario, **changes)  # type: ignore[type-var]

@@ -10,6 +10,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
+from .._options import MAX_STEPS_LIMIT
 from .schema import Name, NonNegative, Number, Positive, Table
 
 # The quantities a study may vary, and the outputs it may keep (the names in the
@@ -76,7 +77,7 @@ class StudySolverTable(Table):
 
     rtol: Positive | None = None
     atol: Positive | None = None
-    max_steps: Annotated[int, Field(ge=1)] | None = None
+    max_steps: Annotated[int, Field(ge=1, le=MAX_STEPS_LIMIT)] | None = None
 
 
 class ParameterTable(Table):
