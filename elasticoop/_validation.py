@@ -57,14 +57,21 @@ def as_float_array(
     """
     arr: np.ndarray | Array
     if isinstance(value, jax.core.Tracer):
+        if jnp.iscomplexobj(value):
+            raise ValueError(f"{name} must be real, got a traced {value.dtype} array")
         arr = value.astype(jnp.float64) if value.dtype != jnp.float64 else value
     else:
+        not_numbers = f"{name} must be an array of numbers, got {value!r}"
         try:
-            arr = np.asarray(value, dtype=np.float64)
+            raw = np.asarray(value)
         except (TypeError, ValueError):
-            raise ValueError(
-                f"{name} must be an array of numbers, got {value!r}"
-            ) from None
+            raise ValueError(not_numbers) from None
+        if np.iscomplexobj(raw):  # the cast would drop the imaginary part
+            raise ValueError(f"{name} must be real, got {_show(raw)}")
+        try:
+            arr = raw.astype(np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(not_numbers) from None
     if shape is not None:
         shape = tuple(shape)
         ok = arr.ndim == len(shape) and all(

@@ -47,6 +47,10 @@ BAD_INPUTS = {
         lambda: eo.Connection(0, 1, stiffness=[-1.0] + [1.0] * 5, damping=[0.0] * 6),
         r"Connection\(0, 1\).stiffness",
     ),
+    "complex stiffness": (
+        lambda: eo.Connection(0, 1, stiffness=[1e3 + 1e3j] * 6, damping=[0.0] * 6),
+        r"Connection\(0, 1\).stiffness must be real",
+    ),
     "stiffness shape": (
         lambda: eo.Connection(0, 1, stiffness=[1.0] * 5, damping=[0.0] * 6),
         r"stiffness must have shape \(6,\), got shape \(5,\)",
@@ -140,6 +144,8 @@ BAD_SIMULATE = {
         dict(y_init=Y.at[1, 4].set(0.0)),
         r"y_init: body 1 starts at gimbal lock",
     ),
+    "complex y_init": (dict(y_init=np.asarray(Y) + 1j), "y_init must be real"),
+    "complex forces": (dict(forces=np.zeros((2, 6)) + 1j), "F must be real"),
     "rtol": (dict(rtol=-1.0), "rtol must be a positive number"),
     "rtol 1": (dict(rtol=1.0), r"simulate.rtol must be below 1 \(a relative error\)"),
     "gimbal_tol": (dict(gimbal_tol=2.0), r"simulate.gimbal_tol must be below 1"),
