@@ -348,6 +348,16 @@ def test_bad_identify_arguments():
         identify(zero, e, STIFFNESS, init="model", progress=False)
     with pytest.raises(ValueError, match="at least one Experiment"):
         identify(model, [], STIFFNESS, progress=False)
+    for bad, match in (
+        (dict(rcond=np.nan), "rcond must be a number in"),
+        (dict(rcond=-1.0), "rcond must be a number in"),
+        (dict(max_relative_stderr=np.nan), "max_relative_stderr must be a number"),
+        (dict(max_relative_stderr=-1.0), "max_relative_stderr must be a number"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            identify(model, e, STIFFNESS, progress=False, **bad)
+        with pytest.raises(ValueError, match=match):
+            eo.gauss_newton_uncertainty(np.zeros(3), np.eye(3), np.ones(3), True, **bad)
 
 
 # --- a fit that cannot leave its start ------------------------------------------

@@ -584,6 +584,53 @@ BAD = {
         "axis 0 is named 'coordinate', which has 6 entries in this study, but has "
         "length 3",
     ),
+    "same leaf twice": (
+        lambda: _study(
+            [
+                mc.Parameter(
+                    "k1", lambda m: m.stiffness, mc.Uniform(1, 2), relative=True
+                ),
+                mc.Parameter(
+                    "k2", lambda m: m.stiffness, mc.Uniform(1, 2), relative=True
+                ),
+            ]
+        ),
+        "Parameter 'k2' selects the same leaf of the model as parameter 'k1'",
+    ),
+    "parameter named like an axis": (
+        lambda: mc.Parameter("coordinate", lambda m: m.stiffness, mc.Uniform(1, 2)),
+        "Parameter.name 'coordinate' is reserved",
+    ),
+    "output named like an axis": (
+        lambda: mc.Study(
+            three_body_model(),
+            three_body_state(),
+            np.zeros((3, 6)),
+            TS,
+            parameters=_parameters()[:1],
+            outputs={"body": mc.peak_elastic_force()},
+            n_samples=2,
+        ),
+        "Study.outputs: name 'body' clashes with a reserved",
+    ),
+    "mask as indices": (
+        lambda: mc.sample_parameters(_study(), np.arange(N_SAMPLES) % 2 == 0),
+        "indices must be integer sample numbers, got an array of dtype bool",
+    ),
+    "fractional indices": (
+        lambda: mc.sample_parameters(_study(), [2.9]),
+        "indices must be integer sample numbers, got an array of dtype float64",
+    ),
+    "no sensitivities": (
+        lambda: mc.local_sensitivities(_study(), indices=[]),
+        "indices must name at least one sample",
+    ),
+    "no devices": (
+        lambda: mc.run_study(_study(), devices=[], progress=False),
+        "devices must name at least one device",
+    ),
+    "wilson k > n": (lambda: mc.wilson_interval(5, 3), "0 <= successes <= n"),
+    "wilson n = 0": (lambda: mc.wilson_interval(0, 0), "n >= 1"),
 }
 
 
@@ -592,3 +639,19 @@ def test_bad_input_is_named(case):
     make, match = BAD[case]
     with pytest.raises(ValueError, match=match):
         make()
+
+
+def test_bad_queries_of_results_are_named(results):
+    with pytest.raises(ValueError, match="threshold must not be NaN"):
+        mc.exceedance_probability(results, "peak_force", np.nan)
+    with pytest.raises(ValueError, match=r"threshold of shape \(4,\) does not"):
+        mc.exceedance_probability(results, "peak_force", np.ones(4))
+    with pytest.raises(ValueError, match="the study has no variable 'nope'"):
+        mc.rank_correlations(results, "nope")
+    # a NumPy integer is an integer
+    np.testing.assert_array_equal(
+        mc.run_study(
+            _study(), chunk_size=np.int64(8), batch_width=BATCH_WIDTH, progress=False
+        )["peak_force"],
+        results["peak_force"],
+    )

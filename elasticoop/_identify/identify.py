@@ -30,7 +30,12 @@ from .residuals import (
 )
 from .result import IdentificationResult
 from .step_budget import START_MAX_STEPS, StepBudget
-from .uncertainty import Uncertainty, gauss_newton_uncertainty, with_held_stderr
+from .uncertainty import (
+    Uncertainty,
+    check_identifiability_thresholds,
+    gauss_newton_uncertainty,
+    with_held_stderr,
+)
 
 METHODS = ("levenberg-marquardt", "lbfgs")
 # Significance level of the test that decides whether parameters flagged not
@@ -184,6 +189,7 @@ def identify(
     for name, value in (("xtol", xtol), ("ftol", ftol)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a number >= 0, got {value!r}")
+    check_identifiability_thresholds(rcond, max_relative_stderr)
     if max_sim_steps is not None and not (
         isinstance(max_sim_steps, int) and max_sim_steps >= 1
     ):

@@ -29,6 +29,8 @@ failed decomposition), every quantity is NaN and `Uncertainty.reason` says why.
 """
 
 import dataclasses
+import math
+import numbers
 import warnings
 
 import numpy as np
@@ -99,6 +101,7 @@ def gauss_newton_uncertainty(
     Non-finite inputs, or a singular value decomposition that fails, give an
     `Uncertainty` of NaN whose `reason` says why, with a `RuntimeWarning`.
     """
+    check_identifiability_thresholds(rcond, max_relative_stderr)
     residual = np.asarray(residual, dtype=np.float64)
     J = np.asarray(jacobian_p, dtype=np.float64)
     p = np.asarray(p, dtype=np.float64)
@@ -163,6 +166,20 @@ def gauss_newton_uncertainty(
         identifiable=identifiable,
         noise_scale=s,
     )
+
+
+def check_identifiability_thresholds(rcond, max_relative_stderr) -> None:
+    """`rcond` in [0, 1) and `max_relative_stderr` > 0, or a `ValueError` naming
+    them (NaN or a negative value silently flagged every parameter, or none)."""
+    if not (isinstance(rcond, numbers.Real) and 0 <= float(rcond) < 1):
+        raise ValueError(f"rcond must be a number in [0, 1), got {rcond!r}")
+    if not (
+        isinstance(max_relative_stderr, numbers.Real)
+        and 0 < float(max_relative_stderr) <= math.inf
+    ):
+        raise ValueError(
+            f"max_relative_stderr must be a number > 0, got {max_relative_stderr!r}"
+        )
 
 
 def project_out(J, nuisance, rcond: float = 1e-8):

@@ -16,7 +16,7 @@ import numpy as np
 import xarray as xr
 from scipy.stats import ConstantInputWarning, spearmanr
 
-from .stats import valid_samples
+from .stats import named_variable, valid_samples
 
 
 def parameter_names(ds: xr.Dataset) -> list[str]:
@@ -49,7 +49,8 @@ def rank_correlations(ds: xr.Dataset, output: str, **select) -> xr.DataArray:
     **Returns:** a `DataArray` over dimension `parameter` (labels like
     `"stiffness[beam-left, x]"`), with `attrs["n"]`, the number of samples used.
     """
-    y = ds[output].isel(select) if select else ds[output]
+    y = named_variable(ds, output)
+    y = y.isel(select) if select else y
     if y.ndim != 1:
         raise ValueError(
             f"output {output!r} is not scalar per sample (dims {y.dims[1:]}); pick "

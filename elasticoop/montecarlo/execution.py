@@ -14,6 +14,7 @@ chunk, its neighbours, the number of devices or of processes (bit for bit).
 
 import contextlib
 import math
+import numbers
 import platform
 from collections.abc import Callable
 from functools import partial
@@ -258,8 +259,8 @@ def run_study(
     study: Study,
     store: str | Path | None = None,
     *,
-    chunk_size: int | None = None,
-    batch_width: int | None = None,
+    chunk_size: int | np.integer | None = None,
+    batch_width: int | np.integer | None = None,
     memory_budget: int | None = None,
     devices=None,
     progress: bool = True,
@@ -308,32 +309,36 @@ def run_study(
         raise ValueError(f"study must be a Study, got {type(study).__name__}")
     for name, value in (("batch_width", batch_width), ("chunk_size", chunk_size)):
         if value is not None and (
-            isinstance(value, bool) or not isinstance(value, int) or value < 1
+            isinstance(value, bool)
+            or not isinstance(value, numbers.Integral)
+            or value < 1
         ):
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    width = None if batch_width is None else int(batch_width)
+    chunk = None if chunk_size is None else int(chunk_size)
     devices = list(jax.devices() if devices is None else devices)
+    if not devices:
+        raise ValueError("devices must name at least one device, got none")
     if memory_budget is None:
         memory_budget = memory_budget_for(devices)
     mesh = Mesh(np.array(devices), ("samples",))
     with contextlib.ExitStack() as stack:
         if store is None:
-            if batch_width is None:
-                batch_width = default_batch_width(
-                    study, memory_budget, len(devices), chunk_size
-                )
-            chunk_size = _chunk_size(
-                study, None, None, chunk_size, memory_budget, batch_width, len(devices)
+            if width is None:
+                width = default_batch_width(study, memory_budget, len(devices), chunk)
+            chunk = _chunk_size(
+                study, None, None, chunk, memory_budget, width, len(devices)
             )
-            manifest = _manifest(study, chunk_size, batch_width)
+            manifest = _manifest(study, chunk, width)
             done = np.zeros(manifest["n_chunks"], dtype=bool)
         else:
             manifest, done = _open_store(
                 study,
                 store,
                 stack,
-                chunk_size,
+                chunk,
                 memory_budget,
-                batch_width,
+                width,
                 len(devices),
                 trust_callables,
             )

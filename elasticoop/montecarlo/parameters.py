@@ -11,7 +11,11 @@ from .._models import AbstractElasticModel
 from .distributions import AbstractDistribution
 
 TARGETS = ("model", "forces", "y_init", "ydot_init")
-_RESERVED = ("sample", "status", "event_time", "time")
+# Names of the results' own variables and of their labelled axes (and the `_wrt`
+# axes of `local_sensitivities`): a parameter or output of one of these names
+# would clash with them in the results' dataset.
+_AXES = ("time", "body", "coordinate", "connection")
+_RESERVED = ("sample", "status", "event_time", *_AXES, *(f"{a}_wrt" for a in _AXES))
 
 
 class Inputs(eqx.Module):

@@ -90,10 +90,23 @@ def sample_parameters(study, indices=None) -> dict[str, np.ndarray]:
     """
     if indices is None:
         indices = np.arange(study.n_samples)
-    indices = np.asarray(indices, dtype=np.int64)
-    if indices.ndim != 1 or np.any((indices < 0) | (indices >= study.n_samples)):
-        raise ValueError(
-            f"indices must be a 1-d array of sample numbers in [0, {study.n_samples})"
-        )
+    indices = as_sample_indices(indices, study.n_samples)
     strata = lhs_strata(study)[indices]
     return jax.tree.map(np.asarray, _parameter_values(study, indices, strata))
+
+
+def as_sample_indices(indices, n_samples: int) -> np.ndarray:
+    """`indices` as a 1-d int64 array of sample numbers in `[0, n_samples)`, or a
+    `ValueError` naming them (a boolean mask or fractional numbers were cast to
+    other samples)."""
+    raw = np.asarray(indices)
+    if raw.dtype.kind not in "iu" and not (raw.size == 0 and raw.dtype.kind == "f"):
+        raise ValueError(
+            f"indices must be integer sample numbers, got an array of dtype {raw.dtype}"
+        )
+    indices = raw.astype(np.int64)
+    if indices.ndim != 1 or np.any((indices < 0) | (indices >= n_samples)):
+        raise ValueError(
+            f"indices must be a 1-d array of sample numbers in [0, {n_samples})"
+        )
+    return indices

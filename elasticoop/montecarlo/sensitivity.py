@@ -21,7 +21,7 @@ import xarray as xr
 
 from .._status import Status
 from .execution import _variables
-from .sampling import sample_parameters
+from .sampling import as_sample_indices, sample_parameters
 from .store import axis_labels
 from .study import Study
 
@@ -65,7 +65,11 @@ def local_sensitivities(study: Study, indices=None, batch_width: int = 8) -> xr.
         or batch_width < 1
     ):
         raise ValueError(f"batch_width must be a positive integer, got {batch_width!r}")
-    indices = np.arange(study.n_samples) if indices is None else np.asarray(indices)
+    if indices is None:
+        indices = np.arange(study.n_samples)
+    indices = as_sample_indices(indices, study.n_samples)
+    if indices.size == 0:
+        raise ValueError("indices must name at least one sample, got none")
     values = sample_parameters(study, indices)
     n = indices.shape[0]
     padded = -(-n // batch_width) * batch_width

@@ -19,7 +19,7 @@ def _status_name(code: int) -> str:
     return Status(code).name
 
 
-def _variable(ds: xr.Dataset, name: str) -> xr.DataArray:
+def named_variable(ds: xr.Dataset, name: str) -> xr.DataArray:
     if name not in ds.data_vars:
         raise ValueError(
             f"the study has no variable {name!r}; it has {list(ds.data_vars)}"
@@ -29,7 +29,7 @@ def _variable(ds: xr.Dataset, name: str) -> xr.DataArray:
 
 def valid_samples(ds: xr.Dataset, name: str) -> xr.DataArray:
     """Boolean mask over `sample`: succeeded and `name` finite everywhere."""
-    x = _variable(ds, name)
+    x = named_variable(ds, name)
     other = [str(d) for d in x.dims if d != "sample"]
     finite = x.copy(data=np.isfinite(x.values))
     if other:
@@ -72,7 +72,7 @@ def statistics(ds: xr.Dataset, name: str, quantiles=(0.05, 0.5, 0.95)) -> xr.Dat
     q = np.asarray(quantiles, dtype=np.float64)
     if q.ndim != 1 or np.any((q < 0) | (q > 1)):
         raise ValueError(f"quantiles must be numbers in [0, 1], got {quantiles!r}")
-    x = _variable(ds, name)
+    x = named_variable(ds, name)
     ok = valid_samples(ds, name)
     values = x.values[ok.values]
     n = values.shape[0]
@@ -105,6 +105,11 @@ def wilson_interval(successes, n, confidence: float = 0.95):
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
     k = np.asarray(successes, dtype=np.float64)
     n = np.asarray(n, dtype=np.float64)
+    if not np.all((n >= 1) & (k >= 0) & (k <= n)):
+        raise ValueError(
+            f"wilson_interval needs 0 <= successes <= n and n >= 1, got successes = "
+            f"{successes!r}, n = {n.tolist()!r}"
+        )
     z = NormalDist().inv_cdf(0.5 + confidence / 2)
     p = k / n
     denom = 1 + z**2 / n
@@ -138,10 +143,20 @@ def exceedance_probability(
     """
     if failures not in ("exclude", "exceed"):
         raise ValueError(f"failures must be 'exclude' or 'exceed', got {failures!r}")
-    x = _variable(ds, name)
+    x = named_variable(ds, name)
     ok = valid_samples(ds, name).values
     dims = [d for d in x.dims if d != "sample"]
-    exceed = np.asarray(x.values > np.asarray(threshold))
+    level = np.asarray(threshold, dtype=np.float64)
+    if np.any(np.isnan(level)):
+        raise ValueError(f"threshold must not be NaN, got {threshold!r}")
+    try:
+        np.broadcast_shapes(level.shape, x.shape[1:])
+    except ValueError:
+        raise ValueError(
+            f"threshold of shape {level.shape} does not broadcast to the shape "
+            f"{x.shape[1:]} of {name!r} per sample (dims {dims})"
+        ) from None
+    exceed = np.asarray(x.values > level)
     if failures == "exclude":
         k, n = exceed[ok].sum(axis=0), int(ok.sum())
     else:

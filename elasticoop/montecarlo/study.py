@@ -166,6 +166,7 @@ class Study(eqx.Module):
     def _check_parameters(self) -> tuple:
         shapes = {}
         labels = self._labels()
+        selected: dict[int, str] = {}  # leaf position in `inputs` -> parameter
         for k, p in enumerate(self.parameters):
             if not isinstance(p, Parameter):
                 raise ValueError(
@@ -180,14 +181,26 @@ class Study(eqx.Module):
                     f"Parameter {p.name!r}: where does not select a leaf of the "
                     f"{p.target}: {err}"
                 ) from None
+            marker = _Marker()
             try:
-                eqx.tree_at(p._select, self.inputs, leaf)
+                marked = eqx.tree_at(p._select, self.inputs, marker)
             except (TypeError, ValueError):
                 raise ValueError(
                     f"Parameter {p.name!r}: where must select a whole leaf "
                     f"(equinox.tree_at-style, e.g. lambda m: m.bodies.mass), not an "
                     f"expression of it such as an indexed entry"
                 ) from None
+            position = next(
+                i for i, x in enumerate(jax.tree.leaves(marked)) if x is marker
+            )
+            if position in selected:
+                raise ValueError(
+                    f"Parameter {p.name!r} selects the same leaf of the {p.target} "
+                    f"as parameter {selected[position]!r}: vary each leaf in one "
+                    f"parameter (their draws would compose, and the values recorded "
+                    f"would not be those simulated)"
+                )
+            selected[position] = p.name
             if not (
                 isinstance(leaf, jax.Array | np.ndarray | np.generic)
                 and jnp.issubdtype(leaf.dtype, jnp.floating)
@@ -447,6 +460,10 @@ def _check_labelled(what: str, dims, shape, labels: dict) -> None:
                 f"{what}: axis {axis} is named {dim!r}, which has {len(labels[dim])} "
                 f"entries in this study, but has length {length}"
             )
+
+
+class _Marker:
+    """A leaf that marks the one a parameter selects."""
 
 
 def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dict:
