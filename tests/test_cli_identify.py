@@ -65,6 +65,22 @@ def test_unknown_names_in_options_exit_2(tmp_path, capsys):
     )
 
 
+def test_default_fit_that_does_not_apply_says_so(tmp_path, capsys):
+    """An immobile scenario without an [identify] table: the default fit
+    (stiffness and damping of connections) does not apply, and the message says
+    where the setting came from and what to do, not that [identify] is wrong."""
+    from elasticoop._examples import example_files
+
+    hanging = example_files()["hanging_object"]
+    out = str(tmp_path / "out")
+    code = main(["identify", str(hanging), str(MEASURED), "-o", out])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "the default fit: stiffness and damping can be fitted for the mobile" in err
+    assert "no [identify] table: choose what to fit with --fit" in err
+    assert "[identify] fit" not in err
+
+
 def test_toml_text_reads_back_as_every_shipped_scenario():
     for name, file in example_files().items():
         raw = tomllib.loads(file.read_text(encoding="utf-8"))

@@ -367,6 +367,26 @@ MALFORMED = [
         "covers t = 0.0..0.1 s",
     ),
     (
+        "CSV with a repeated column",
+        (
+            "[forces.constant]\ngrip = [0.0, 0.0, 15.0, 0.0, 0.0, 0.0]",
+            '[forces]\nsamples = "dup.csv"',
+        ),
+        "[forces]",
+        "samples",
+        "repeated column names: grip.fz",
+    ),
+    (
+        "CSV of true and false",
+        (
+            "[forces.constant]\ngrip = [0.0, 0.0, 15.0, 0.0, 0.0, 0.0]",
+            '[forces]\nsamples = "bool.csv"',
+        ),
+        "[forces]",
+        "samples",
+        "column 'grip.fz' holds non-numbers",
+    ),
+    (
         "CSV column naming no component",
         (
             "[forces.constant]\ngrip = [0.0, 0.0, 15.0, 0.0, 0.0, 0.0]",
@@ -423,6 +443,8 @@ def _data_files(tmp_path):
     (tmp_path / "bad.csv").write_text("t,grip.fz\n0,1\n0.5,heavy\n1,1\n")
     (tmp_path / "short.csv").write_text("t,grip.fz\n0,1\n0.1,1\n")
     (tmp_path / "col.csv").write_text("t,grip.torque\n0,1\n1,1\n")
+    (tmp_path / "dup.csv").write_text("t,grip.fz,grip.fz\n0,1,2\n1,1,2\n")
+    (tmp_path / "bool.csv").write_text("t,grip.fz\n0,true\n1,false\n")
     np.savetxt(tmp_path / "K.csv", coupling([1e3] * 3 + [5.0] * 3), delimiter=",")
     np.save(tmp_path / "D.npy", coupling([2.0] * 3 + [0.01] * 3))
     good = coupling([1e3] * 3 + [5.0] * 3)

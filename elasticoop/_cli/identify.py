@@ -142,9 +142,17 @@ def fit_settings(scenario, args) -> IdentifySpec:
     )
     if problems:
         origin = {k: f"--{k.replace('_', '-')}" for k in given}
+        # a key neither given nor in the file holds the default
+        default = "the default" if scenario.identify is None else "[identify]"
         raise UserError(
             "; ".join(
-                f"{origin.get(key, f'[identify] {key}')}: {message}"
+                f"{origin.get(key, f'{default} {key}')}: {message}"
+                + (
+                    " (the scenario has no [identify] table: choose what to fit "
+                    "with --fit)"
+                    if key not in origin and scenario.identify is None
+                    else ""
+                )
                 for key, message in problems
             )
         )

@@ -149,8 +149,16 @@ def read_series(base_dir: pathlib.Path, name: str):
             f"file '{name}': the first column must be the time 't' [s], got "
             f"{columns[0] if columns else 'no columns'!r}"
         )
-    if len(set(columns)) != len(columns):
-        raise ValueError(f"file '{name}' has repeated column names")
+    # pandas renames a repeated name ('fz', 'fz.1'): read the header as written
+    header = pd.read_csv(
+        path, comment="#", skipinitialspace=True, header=None, nrows=1, dtype=str
+    )
+    written = [str(c).strip() for c in header.iloc[0]]
+    repeated = sorted({c for c in written if written.count(c) > 1})
+    if repeated:
+        raise ValueError(
+            f"file '{name}' has repeated column names: {', '.join(repeated)}"
+        )
     if len(frame) < 2:
         rows = "no rows of samples, only a header" if len(frame) == 0 else "1 row"
         raise ValueError(
@@ -160,6 +168,7 @@ def read_series(base_dir: pathlib.Path, name: str):
         c
         for c, col in zip(columns, frame.columns)
         if not pd.api.types.is_numeric_dtype(frame[col])
+        or pd.api.types.is_bool_dtype(frame[col])
     ]
     if bad:
         raise ValueError(f"file '{name}': column '{bad[0]}' holds non-numbers")
