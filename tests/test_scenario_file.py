@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import elasticoop as eo
 from elasticoop import ImmobileModel, MobileModel, SampledForce
 from elasticoop._cli import main
 from elasticoop._config import ScenarioError, load_scenario
@@ -580,3 +581,28 @@ def test_entries_of_the_wrong_kind_are_named(tmp_path, capsys):
     _data_files(tmp_path)
     empty = IMMOBILE.replace('K = "K.csv"', "K = []")
     _check_rejected(tmp_path, capsys, empty, "[immobile]", "K", "is empty")
+
+
+def test_equilibrium_start_holds_a_csv_motion_at_its_first_values(tmp_path):
+    """`from = "equilibrium"` with a prescribed motion from a CSV file whose first
+    row differs from `[initial]`: the run imposes the CSV's values at the first
+    time, so the equilibrium is solved with the grasp there (it was solved at the
+    `[initial]` pose: the object started with a net force of a spring stretched
+    by 0.1 m)."""
+    (tmp_path / "m.csv").write_text("t,grip.z\n0,1.1\n0.5,1.1\n")
+    text = TINY.replace(
+        "[initial.obj]", '[initial]\nfrom = "equilibrium"\n[initial.obj]'
+    )
+    text = text.replace("velocity = [0.0, 0.0, 0.5]\n", "").replace(
+        "angle_rates = { degrees = [0.0, 0.0, 30.0] }\n", ""
+    )
+    text += (
+        '[prescribed]\ncoordinates = { grip = "all" }\n'
+        'motion = { csv = "m.csv", angle_unit = "radians" }\n'
+    )
+    s = load_scenario(write(tmp_path, text))
+    assert float(s.y_init[1, 2]) == 1.1
+    y0, _, _ = s.prescribed.motion(s.ts).impose(s.ts[0], s.y_init, s.ydot_init)
+    np.testing.assert_array_equal(y0, s.y_init)
+    net = -(eo.elastic_forces(s.model, y0) - s.model.gravity_forces())[0]
+    np.testing.assert_allclose(net, 0.0, atol=1e-8)

@@ -542,17 +542,23 @@ class _Builder:
         coordinates under gravity and the forces at the start, at rest, held
         constant (with `feedforward = "hold"`, none on the contact bodies), with
         the `[prescribed]` coordinates (without that table, the contact bodies)
-        held at their `[initial]` values; returns the initial state and the
-        prescribed motion and forces that start from it."""
+        held at their `[initial]` values, or, for a motion from a CSV file, at the
+        motion's values at the first time (which the run imposes there); returns
+        the initial state and the prescribed motion and forces that start from
+        it."""
         n = model.n_bodies
         mask = held_coordinates(n, None if prescribed is None else prescribed.mask)
+        y_start = self.y_init
+        if prescribed is not None and not prescribed.hold:
+            first = prescribed.motion(self.ts).motion(jnp.asarray(self.ts[0]))
+            y_start = np.where(mask, np.asarray(first), self.y_init)
         applied = np.array(
-            forces_at_start(forces, float(self.ts[0]), jnp.asarray(self.y_init), n)
+            forces_at_start(forces, float(self.ts[0]), jnp.asarray(y_start), n)
         )
         if self.hold_feedforward:
             applied[1:] = 0.0
         try:
-            found = equilibrium_start(model, self.y_init, mask, jnp.asarray(applied))
+            found = equilibrium_start(model, y_start, mask, jnp.asarray(applied))
         except ValueError as err:
             held = "[prescribed] coordinates" if prescribed else "contact bodies"
             self.add(
