@@ -3,11 +3,11 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Float
 
-from ._custom_types import BodyCoordinate, BodyCoordinates, BodyState
+from ._custom_types import BodyCoordinate, BodyCoordinates, BodyState, BoolScalar
 from ._rotations import AbstractRotation
-from ._validation import as_float_array, require, stack
+from ._validation import as_float_array, require, stack, xp
 
 # Relative slack in the triangle inequality A + B >= C (a planar lamina has equality).
 _TRIANGLE_RTOL = 1e-12
@@ -47,14 +47,16 @@ class RigidBody(eqx.Module):
         self.mass = jnp.asarray(mass)
         self.inertia = jnp.asarray(inertia)
 
-    def admissible(self) -> Bool[Array, ""]:
+    def admissible(self) -> BoolScalar:
         """Whether every body passes the checks of construction (masses and
         principal moments positive, the triangle inequalities): for bodies whose
-        values were changed afterwards (`eqx.tree_at`, a Monte Carlo draw)."""
+        values were changed afterwards (`eqx.tree_at`, a Monte Carlo draw).
+        Evaluated by NumPy when the values are concrete."""
+        np_ = xp(self.mass, self.inertia)
         return (
-            jnp.all(self.mass > 0)
-            & jnp.all(self.inertia > 0)
-            & jnp.all(_triangle(self.inertia))
+            np_.all(self.mass > 0)
+            & np_.all(self.inertia > 0)
+            & np_.all(_triangle(self.inertia))
         )
 
 

@@ -28,6 +28,9 @@ MassBlocks = Float[Array, "bodies 6 6"]
 Forces = Float[Array, "rows 6"]
 # Prescribed coordinates: a concrete bool array `(bodies, 6)`.
 Mask = Bool[ArrayLike, "bodies 6"]
+# A truth value: a NumPy boolean where computed from concrete values, a JAX one
+# where traced (the checks that work both ways, `xp`).
+BoolScalar: TypeAlias = Any
 # One array per coordinate, `(bodies,)` each (`()` for a single body): the layout in
 # which the kinetic energy is evaluated for all bodies at once, elementwise (six
 # coordinates, or the three angles).

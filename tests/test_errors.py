@@ -377,6 +377,8 @@ def test_admissible_repeats_the_checks_of_construction():
         changed = eqx.tree_at(where, MODEL, value)
         assert not bool(changed.admissible()), name
         assert not bool(admissible(changed)), name
+        with pytest.raises(ValueError, match="model has values its constructor"):
+            eo.simulate(changed, Y, Z, TS)
     K = np.diag(np.r_[np.zeros(6), np.full(6, 100.0)])
     y0 = np.tile([0.0, 0, 0, *UP], (2, 1))
     immobile = eo.ImmobileModel([BODY] * 2, K, 0.1 * K, y0)

@@ -6,11 +6,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import ArrayLike, Float
 
 from .._body import RigidBody, kinetic_energy
-from .._custom_types import DofMatrix, Scalar, State
+from .._custom_types import BoolScalar, DofMatrix, Scalar, State
 from .._rotations import AbstractRotation, get_rotation
+from .._validation import is_concrete
 
 # Eigenvalues below this fraction of the largest count as zero in `rank K`.
 RANK_RTOL = 1e-9
@@ -31,18 +32,22 @@ class AbstractElasticModel(eqx.Module):
     convention: eqx.AbstractVar[str]
 
     @abc.abstractmethod
-    def elastic_admissible(self) -> Bool[Array, ""]:
+    def elastic_admissible(self) -> BoolScalar:
         """Whether the elastic parameters pass the checks of construction."""
 
-    def admissible(self) -> Bool[Array, ""]:
+    def admissible(self) -> BoolScalar:
         """Whether the parameters pass the checks of construction (bodies,
         $g \\ge 0$, the elastic parameters), traced or not: for a model whose
         values were changed afterwards (`eqx.tree_at`, a Monte Carlo draw), which
-        no constructor has checked."""
+        no constructor has checked. Evaluated by NumPy when the values are
+        concrete."""
+        # NumPy leaves where concrete: JAX operators on concrete arrays would still
+        # be staged into a surrounding `jit`
+        model = jax.tree.map(np.asarray, self) if is_concrete(self) else self
         return (
-            self.bodies.admissible()
-            & jnp.all(self.gravity >= 0)
-            & self.elastic_admissible()
+            model.bodies.admissible()
+            & (model.gravity >= 0)
+            & model.elastic_admissible()
         )
 
     @abc.abstractmethod

@@ -3,10 +3,10 @@
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import ArrayLike, Float
 
 from .._body import RigidBody, stack_bodies
-from .._custom_types import ArrayInput, DofMatrix, Scalar, State
+from .._custom_types import ArrayInput, BoolScalar, DofMatrix, Scalar, State
 from .._rotations import get_rotation
 from .._validation import as_float_array, is_concrete, require, xp
 from .base import AbstractElasticModel, autodiff_restoring_forces, numerical_rank
@@ -51,10 +51,11 @@ def _asymmetry_and_lowest_eigenvalue(matrix):
     return scale, asym, low
 
 
-def symmetric_psd(matrix) -> Bool[Array, ""]:
-    """Whether `matrix` passes `check_symmetric_psd`, traced or not."""
-    scale, asym, low = _asymmetry_and_lowest_eigenvalue(jnp.asarray(matrix))
-    return jnp.asarray((asym <= SYMMETRY_RTOL * scale) & (low >= -PSD_RTOL * scale))
+def symmetric_psd(matrix) -> BoolScalar:
+    """Whether `matrix` passes `check_symmetric_psd`, traced or not (by NumPy
+    when concrete)."""
+    scale, asym, low = _asymmetry_and_lowest_eigenvalue(matrix)
+    return (asym <= SYMMETRY_RTOL * scale) & (low >= -PSD_RTOL * scale)
 
 
 def check_stiffness(K, n_bodies: int):
@@ -129,7 +130,7 @@ class ImmobileModel(AbstractElasticModel):
     def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
         return autodiff_restoring_forces(self, y, ydot)
 
-    def elastic_admissible(self) -> Bool[Array, ""]:
+    def elastic_admissible(self) -> BoolScalar:
         """K and D symmetric positive semidefinite."""
         return symmetric_psd(self.K) & symmetric_psd(self.D)
 

@@ -8,10 +8,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._body import RigidBody, stack_bodies
 from .._custom_types import (
+    BoolScalar,
     DofMatrix,
     Pairs,
     Scalar,
@@ -20,7 +21,7 @@ from .._custom_types import (
     Vector6,
 )
 from .._rotations import get_rotation
-from .._validation import as_float_array, is_concrete, require, stack
+from .._validation import as_float_array, is_concrete, require, stack, xp
 from .base import AbstractElasticModel
 from .immobile import check_gravity
 
@@ -299,12 +300,13 @@ class MobileModel(AbstractElasticModel):
 
         return per_body(elastic), per_body(damping)
 
-    def elastic_admissible(self) -> Bool[Array, ""]:
+    def elastic_admissible(self) -> BoolScalar:
         """Stiffness, damping and rest lengths >= 0."""
+        np_ = xp(self.stiffness, self.damping, self.rest_length)
         return (
-            jnp.all(self.stiffness >= 0)
-            & jnp.all(self.damping >= 0)
-            & jnp.all(self.rest_length >= 0)
+            np_.all(self.stiffness >= 0)
+            & np_.all(self.damping >= 0)
+            & np_.all(self.rest_length >= 0)
         )
 
     def stiffness_matrix(
