@@ -240,25 +240,27 @@ class _SolverFailingAboveLimit(diffrax.Tsit5):
         return (*out, failed)
 
 
+def _fit_from_half_stiffness(swing, **kwargs):
+    """`identify` of the two-body stiffness from half its value, on data of the
+    grasp swung at 2 rad/s about its x axis (and the object at `swing`)."""
+    model, y0 = _two_body()
+    rates = np.zeros((2, 6))
+    rates[1, 4], rates[0, 4] = 2.0, swing
+    traj = eo.simulate(model, y0, rates, TS_SMALL)
+    e = Experiment(TS_SMALL, traj.y, y0, rates)
+    start = eqx.tree_at(STIFFNESS, model, 0.5 * model.stiffness)
+    return identify(start, e, STIFFNESS, init="model", progress=False, **kwargs)
+
+
 @pytest.mark.slow
 def test_failing_trial_step_is_shortened_not_fatal():
     """Adam's first step moves every log-parameter by the learning rate: from
     c^{a2} = 2.5 (truth 5, the gradient says up), lr = 2 proposes 18.5, where the
     solver fails; the step must be halved (6.8) and the fit go on."""
-    model, y0 = _two_body()
-    rates = np.zeros((2, 6))
-    rates[1, 4], rates[0, 4] = 2.0, -0.2  # swing the grasp against the object
-    traj = eo.simulate(model, y0, rates, TS_SMALL)
-    e = Experiment(TS_SMALL, traj.y, y0, rates)
-    start = eqx.tree_at(STIFFNESS, model, 0.5 * model.stiffness)
-    result = identify(
-        start,
-        e,
-        STIFFNESS,
-        init="model",
+    result = _fit_from_half_stiffness(
+        swing=-0.2,  # the object against the grasp
         method=optax.adam(2.0),
         max_steps=3,
-        progress=False,
         solver=_SolverFailingAboveLimit(),
     )
     assert result.n_failed_trials >= 1
@@ -272,21 +274,7 @@ def test_plain_optimiser_with_tiny_steps_is_not_converged():
     """Adam's steps are its learning rate: at 1e-9, below xtol, every step is
     "small" although the start is far from the optimum. The fit must say so
     (stalled, the gradient named), not report convergence."""
-    model, y0 = _two_body()
-    rates = np.zeros((2, 6))
-    rates[1, 4] = 2.0
-    traj = eo.simulate(model, y0, rates, TS_SMALL)
-    e = Experiment(TS_SMALL, traj.y, y0, rates)
-    start = eqx.tree_at(STIFFNESS, model, 0.5 * model.stiffness)
-    result = identify(
-        start,
-        e,
-        STIFFNESS,
-        init="model",
-        method=optax.adam(1e-9),
-        max_steps=5,
-        progress=False,
-    )
+    result = _fit_from_half_stiffness(swing=0.0, method=optax.adam(1e-9), max_steps=5)
     assert not result.converged
     assert result.status == "stalled"
     assert "the gradient is not small" in result.reason

@@ -523,6 +523,18 @@ def test_memory_budget_from_the_devices():
     assert mc.memory_budget_for(jax.devices("cpu")) == gib
 
 
+def _two_sample_study(outputs):
+    return mc.Study(
+        three_body_model(),
+        three_body_state(),
+        np.zeros((3, 6)),
+        TS,
+        parameters=_parameters()[:1],
+        outputs=outputs,
+        n_samples=2,
+    )
+
+
 BAD = {
     "where not a leaf": (
         lambda: _study(
@@ -572,14 +584,8 @@ BAD = {
         r"Study.ts spans \[0.0, 0.3\] s but the Study.forces",
     ),
     "output axis": (
-        lambda: mc.Study(
-            three_body_model(),
-            three_body_state(),
-            np.zeros((3, 6)),
-            TS,
-            parameters=_parameters()[:1],
-            outputs={"r": mc.Output(lambda traj: traj.y[-1, 0, :3], ("coordinate",))},
-            n_samples=2,
+        lambda: _two_sample_study(
+            {"r": mc.Output(lambda traj: traj.y[-1, 0, :3], ("coordinate",))}
         ),
         "axis 0 is named 'coordinate', which has 6 entries in this study, but has "
         "length 3",
@@ -602,15 +608,7 @@ BAD = {
         "Parameter.name 'coordinate' is reserved",
     ),
     "output named like an axis": (
-        lambda: mc.Study(
-            three_body_model(),
-            three_body_state(),
-            np.zeros((3, 6)),
-            TS,
-            parameters=_parameters()[:1],
-            outputs={"body": mc.peak_elastic_force()},
-            n_samples=2,
-        ),
+        lambda: _two_sample_study({"body": mc.peak_elastic_force()}),
         "Study.outputs: name 'body' clashes with a reserved",
     ),
     "mask as indices": (
