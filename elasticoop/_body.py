@@ -54,8 +54,8 @@ class RigidBody(eqx.Module):
         Evaluated by NumPy when the values are concrete."""
         np_ = xp(self.mass, self.inertia)
         return (
-            np_.all(self.mass > 0)
-            & np_.all(self.inertia > 0)
+            np_.all(np_.isfinite(self.mass) & (self.mass > 0))
+            & np_.all(np_.isfinite(self.inertia) & (self.inertia > 0))
             & np_.all(_triangle(self.inertia))
         )
 

@@ -13,6 +13,7 @@ from jaxtyping import Array, Float
 
 from ._custom_types import (
     ArrayInput,
+    BoolScalar,
     Forces,
     Scalar,
     State,
@@ -21,7 +22,7 @@ from ._custom_types import (
     Vector6,
 )
 from ._rotations import get_rotation
-from ._validation import as_float_array, check_times, is_concrete
+from ._validation import as_float_array, check_times, is_concrete, xp
 
 
 class AbstractForce(eqx.Module):
@@ -380,3 +381,13 @@ class PoseTracking(AbstractForce):
         return (
             self.feedforward + self.kp * (ref - grasps) + self.kd * (ref_rate - rates)
         )
+
+
+def force_admissible(force: AbstractForce | None) -> BoolScalar:
+    """Whether a force's values pass its checks of construction other than
+    finiteness (which `simulate` reports as `Status.NONFINITE`), traced or not:
+    for values changed afterwards, e.g. a Monte Carlo draw. A `PoseTracking` lift
+    needs a positive duration; the other forces have no range to check."""
+    if isinstance(force, PoseTracking):
+        return xp(force.duration).asarray(force.duration) > 0
+    return True

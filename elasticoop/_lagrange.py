@@ -45,6 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._body import kinetic_energy
+from ._compat import outside_transformations
 from ._custom_types import (
     BodyCoordinate,
     BodyCoordinates,
@@ -56,10 +57,12 @@ from ._custom_types import (
 )
 from ._mass_blocks import FactoredMassBlocks
 from ._models import AbstractElasticModel
-from ._options import GIMBAL_TOL
 from ._validation import as_float_array, is_concrete
 
 _COORDINATES = range(6)
+# |sin theta| (ZXZ) or |cos pitch| (RPY) below which W is singular to working
+# precision: `accelerations` refuses such a state
+_SINGULAR = float(np.finfo(np.float64).eps)
 _BLOCKS = ((0, 1, 2), (3, 4, 5))  # translations, Euler angles
 
 _Term = TypeVar("_Term", bound=Callable[..., Any])
@@ -190,8 +193,8 @@ def _compiled(term: _Term, solves: bool = False) -> _Term:
     inlined. The arrays, each `(bodies, 6)`, are checked and converted to float64
     first (an error names the function's argument; traced ones are checked for
     shape only), so that a nested list is data, not a static argument of the
-    program. A term that `solves` with $W$ refuses a concrete $Y$ at gimbal lock,
-    where $W$ is singular.
+    program. Called outside any transformation, a term that `solves` with $W$
+    refuses a $Y$ at gimbal lock, where $W$ is singular.
     """
     jitted = eqx.filter_jit(term)
     names = [f"{term.__name__}.{p}" for p in inspect.signature(term).parameters][1:]
@@ -203,8 +206,10 @@ def _compiled(term: _Term, solves: bool = False) -> _Term:
             as_float_array(a, name, shape, check_traced=False)
             for name, a in zip(names, arrays, strict=False)
         ]
-        if solves and checked and is_concrete(checked[0]):
-            model.rotation.check_regular(checked[0][:, 3:], GIMBAL_TOL, names[0])
+        if solves and outside_transformations() and is_concrete(model, checked):
+            # W singular to working precision (a simulation stops well before,
+            # at its `gimbal_tol`)
+            model.rotation.check_regular(checked[0][:, 3:], _SINGULAR, names[0])
         return jitted(model, *(jnp.asarray(a) for a in checked))
 
     return cast(_Term, compiled)

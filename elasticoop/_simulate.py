@@ -175,7 +175,11 @@ def simulate(
     if is_concrete(y_init):
         angles = np.asarray(y_init)[:, 3:]
         model.rotation.check_regular(angles, options.gimbal_tol, "y_init")
-        if isinstance(model, MobileModel) and model.n_connections > 0:
+        if (
+            isinstance(model, MobileModel)
+            and model.n_connections > 0
+            and is_concrete(model)
+        ):
             _check_links_open(model, y_init, options.link_tol)
 
     kw = options.kwargs()

@@ -353,7 +353,16 @@ def test_option_types_for_positive_values():
     parser = argparse.ArgumentParser()
     parser.add_argument("--tol", type=_common.positive_float)
     parser.add_argument("--count", type=_common.positive_int)
+    parser.add_argument("--rtol", type=_common.fraction)
     assert parser.parse_args(["--tol", "1e-6", "--count", "2"]).tol == 1e-6
-    for bad in (["--tol", "0"], ["--tol", "nan"], ["--tol", "x"], ["--count", "0"]):
+    assert parser.parse_args(["--rtol", "0.5"]).rtol == 0.5
+    for bad in (
+        ["--tol", "0"],
+        ["--tol", "nan"],
+        ["--tol", "x"],
+        ["--count", "0"],
+        ["--rtol", "1"],
+        ["--rtol", "2"],
+    ):
         with pytest.raises(SystemExit):
             parser.parse_args(bad)

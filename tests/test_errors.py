@@ -427,3 +427,42 @@ def test_pose_tracking_is_still_built_under_jit():
     batch of gains, say) is accepted."""
     force = jax.jit(lambda kp: _pose_tracking(kp=kp))(jnp.full(6, 50.0))
     np.testing.assert_array_equal(force.kp, 50.0)
+
+
+def test_checks_of_concrete_values_stay_out_of_traces():
+    """A traced model with a constant state (`jit`, `vmap` or `grad` over model
+    parameters) and a constant state under `jit` are simulated and evaluated, not
+    inspected in Python (that raised a tracer conversion error)."""
+    y0 = np.asarray(Y)
+    status = jax.jit(lambda m: eo.simulate(m, y0, Z, TS, throw=False).status)(MODEL)
+    assert int(status) == eo.Status.SUCCESS
+    yddot = jax.jit(lambda: eo.accelerations(MODEL, y0, Z, Z)[0])()
+    np.testing.assert_allclose(yddot, eo.accelerations(MODEL, y0, Z, Z)[0], rtol=1e-14)
+
+
+def test_admissible_sees_values_that_are_not_finite():
+    import equinox as eqx
+
+    for where, value in (
+        (lambda m: m.bodies.mass, MODEL.bodies.mass.at[0].set(np.inf)),
+        (lambda m: m.stiffness, MODEL.stiffness.at[0, 0].set(np.inf)),
+        (lambda m: m.rest_angles, MODEL.rest_angles.at[0, 0].set(np.nan)),
+    ):
+        assert not bool(eqx.tree_at(where, MODEL, value).admissible())
+    K = np.diag(np.r_[np.zeros(6), np.full(6, 100.0)])
+    y0 = np.tile([0.0, 0, 0, *UP], (2, 1))
+    immobile = eo.ImmobileModel([BODY] * 2, K, 0.1 * K, y0)
+    broken = eqx.tree_at(lambda m: m.K, immobile, immobile.K.at[6, 6].set(np.nan))
+    assert not bool(broken.admissible())  # (NumPy's eigenvalues fail on NaN)
+    assert not bool(jax.jit(lambda m: m.admissible())(broken))
+    assert bool(jax.jit(lambda m: m.admissible())(immobile))
+    with pytest.raises(ValueError, match="model has values its constructor"):
+        eo.simulate(broken, y0, np.zeros((2, 6)), TS)
+    # a force's own range: a lift of no duration
+    from elasticoop._forces import force_admissible
+
+    lift = _pose_tracking()
+    assert bool(force_admissible(lift))
+    stopped = eqx.tree_at(lambda f: f.duration, lift, jnp.asarray(0.0))
+    assert not bool(force_admissible(stopped))
+    assert not bool(jax.jit(force_admissible)(stopped))

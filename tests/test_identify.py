@@ -240,16 +240,18 @@ class _SolverFailingAboveLimit(diffrax.Tsit5):
         return (*out, failed)
 
 
-def _fit_from_half_stiffness(swing, **kwargs):
-    """`identify` of the two-body stiffness from half its value, on data of the
-    grasp swung at 2 rad/s about its x axis (and the object at `swing`)."""
+def _swing_fit(start_stiffness, swing=0.0, **kwargs):
+    """`identify` of the two-body stiffness from `start_stiffness(truth)`, on
+    noise-free data of the grasp swung at 2 rad/s about its x axis (and the object
+    at `swing`); returns the result and the true model."""
     model, y0 = _two_body()
     rates = np.zeros((2, 6))
     rates[1, 4], rates[0, 4] = 2.0, swing
     traj = eo.simulate(model, y0, rates, TS_SMALL)
     e = Experiment(TS_SMALL, traj.y, y0, rates)
-    start = eqx.tree_at(STIFFNESS, model, 0.5 * model.stiffness)
-    return identify(start, e, STIFFNESS, init="model", progress=False, **kwargs)
+    start = eqx.tree_at(STIFFNESS, model, start_stiffness(model.stiffness))
+    fit = identify(start, e, STIFFNESS, init="model", progress=False, **kwargs)
+    return fit, model
 
 
 @pytest.mark.slow
@@ -257,7 +259,8 @@ def test_failing_trial_step_is_shortened_not_fatal():
     """Adam's first step moves every log-parameter by the learning rate: from
     c^{a2} = 2.5 (truth 5, the gradient says up), lr = 2 proposes 18.5, where the
     solver fails; the step must be halved (6.8) and the fit go on."""
-    result = _fit_from_half_stiffness(
+    result, _ = _swing_fit(
+        lambda k: 0.5 * k,
         swing=-0.2,  # the object against the grasp
         method=optax.adam(2.0),
         max_steps=3,
@@ -274,10 +277,25 @@ def test_plain_optimiser_with_tiny_steps_is_not_converged():
     """Adam's steps are its learning rate: at 1e-9, below xtol, every step is
     "small" although the start is far from the optimum. The fit must say so
     (stalled, the gradient named), not report convergence."""
-    result = _fit_from_half_stiffness(swing=0.0, method=optax.adam(1e-9), max_steps=5)
+    result, _ = _swing_fit(lambda k: 0.5 * k, method=optax.adam(1e-9), max_steps=5)
     assert not result.converged
     assert result.status == "stalled"
     assert "the gradient is not small" in result.reason
+
+
+@pytest.mark.slow
+def test_plain_optimiser_at_an_exact_fit_is_converged():
+    """Gradient descent on one stiffness of noise-free data: at the optimum the
+    loss falls to zero faster than its gradient, so the gradient test is against
+    the start's loss and the fit is converged there, at the truth."""
+    result, model = _swing_fit(
+        lambda k: k.at[0, 4].multiply(1.2),
+        mask=np.eye(1, 6, 4, dtype=bool),
+        method=optax.sgd(2.0),
+        max_steps=60,
+    )
+    assert result.converged and result.status == "converged", result.reason
+    np.testing.assert_allclose(result.estimate, model.stiffness[0, 4], rtol=1e-6)
 
 
 # --- bad input ----------------------------------------------------------------

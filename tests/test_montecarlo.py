@@ -377,6 +377,33 @@ def test_draws_no_constructor_accepts_are_invalid_samples():
 
 
 @pytest.mark.slow
+def test_a_lift_drawn_without_duration_is_an_invalid_sample():
+    """A drawn pose-tracking force whose lift has no duration is not simulated:
+    `INVALID_SAMPLE` (its constructor refuses it), the others run."""
+    y0 = np.asarray(three_body_state())
+    lift = eo.PoseTracking(
+        y_ref=y0[1:],
+        feedforward=np.zeros((2, 6)),
+        kp=np.full(6, 100.0),
+        kd=np.full(6, 1.0),
+        height=0.01,
+        duration=0.2,
+    )
+    duration = mc.Parameter(
+        "duration", lambda f: f.duration, mc.Uniform(-0.1, 0.3), target="forces"
+    )
+    ds = mc.run_study(
+        _study([duration], n_samples=8, forces=lift, sampling="lhs"),  # 2 below 0
+        batch_width=BATCH_WIDTH,
+        progress=False,
+    )
+    drawn = ds["duration"].values
+    assert (drawn <= 0).any() and (drawn > 0).any()
+    np.testing.assert_array_equal(ds["status"].values[drawn <= 0], mc.INVALID_SAMPLE)
+    np.testing.assert_array_equal(ds["status"].values[drawn > 0], eo.Status.SUCCESS)
+
+
+@pytest.mark.slow
 def test_sensitivities_match_finite_differences():
     params = [
         mc.Parameter(
@@ -644,6 +671,10 @@ def test_bad_queries_of_results_are_named(results):
         mc.exceedance_probability(results, "peak_force", np.nan)
     with pytest.raises(ValueError, match=r"threshold of shape \(4,\) does not"):
         mc.exceedance_probability(results, "peak_force", np.ones(4))
+    per_sample = results["peak_force"].shape[1:]
+    higher = np.ones((3, *per_sample))  # broadcasts, but to more than one sample's
+    with pytest.raises(ValueError, match=r"threshold of shape \(3, "):
+        mc.exceedance_probability(results, "peak_force", higher)
     with pytest.raises(ValueError, match="the study has no variable 'nope'"):
         mc.rank_correlations(results, "nope")
     # a NumPy integer is an integer

@@ -378,6 +378,16 @@ MALFORMED = [
         "repeated column names: grip.fz",
     ),
     (
+        "CSV with unnamed columns",
+        (
+            "[forces.constant]\ngrip = [0.0, 0.0, 15.0, 0.0, 0.0, 0.0]",
+            '[forces]\nsamples = "blank.csv"',
+        ),
+        "[forces]",
+        "samples",
+        "column 3 of the header has no name",
+    ),
+    (
         "CSV of true and false",
         (
             "[forces.constant]\ngrip = [0.0, 0.0, 15.0, 0.0, 0.0, 0.0]",
@@ -446,6 +456,7 @@ def _data_files(tmp_path):
     (tmp_path / "col.csv").write_text("t,grip.torque\n0,1\n1,1\n")
     (tmp_path / "dup.csv").write_text("t,grip.fz,grip.fz\n0,1,2\n1,1,2\n")
     (tmp_path / "bool.csv").write_text("t,grip.fz\n0,true\n1,false\n")
+    (tmp_path / "blank.csv").write_text("t,grip.fz,,\n0,1,2,3\n1,1,2,3\n")
     np.savetxt(tmp_path / "K.csv", coupling([1e3] * 3 + [5.0] * 3), delimiter=",")
     np.save(tmp_path / "D.npy", coupling([2.0] * 3 + [0.01] * 3))
     good = coupling([1e3] * 3 + [5.0] * 3)

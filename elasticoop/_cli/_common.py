@@ -45,6 +45,14 @@ def positive_float(text: str) -> float:
     return value
 
 
+def fraction(text: str) -> float:
+    """argparse `type` for a number in (0, 1) (a relative tolerance)."""
+    value = positive_float(text)
+    if not value < 1:
+        raise argparse.ArgumentTypeError(f"must be below 1, got {text!r}")
+    return value
+
+
 def positive_int(text: str) -> int:
     """argparse `type` for an integer >= 1."""
     try:

@@ -10,6 +10,7 @@ from ._common import (
     EXIT_OK,
     add_output_options,
     common_options,
+    fraction,
     output_folder,
     positive_float,
     say,
@@ -34,7 +35,7 @@ def register(subparsers) -> None:
         ),
     )
     parser.add_argument(
-        "--rtol", type=positive_float, default=None, help="relative tolerance"
+        "--rtol", type=fraction, default=None, help="relative tolerance, in (0, 1)"
     )
     parser.add_argument(
         "--atol", type=positive_float, default=None, help="absolute tolerance"

@@ -153,7 +153,11 @@ def read_series(base_dir: pathlib.Path, name: str):
     header = pd.read_csv(
         path, comment="#", skipinitialspace=True, header=None, nrows=1, dtype=str
     )
-    written = [str(c).strip() for c in header.iloc[0]]
+    written = ["" if pd.isna(c) else str(c).strip() for c in header.iloc[0]]
+    if "" in written:
+        raise ValueError(
+            f"file '{name}': column {written.index('') + 1} of the header has no name"
+        )
     repeated = sorted({c for c in written if written.count(c) > 1})
     if repeated:
         raise ValueError(

@@ -22,6 +22,7 @@ from .._options import MAX_STEPS_LIMIT, SOLVERS as SOLVER_CLASSES
 Number = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Fraction = Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)]  # in (0, 1)
 Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
 Vector6 = Annotated[list[Number], Field(min_length=6, max_length=6)]
 NonNegative6 = Annotated[list[NonNegative], Field(min_length=6, max_length=6)]
@@ -217,7 +218,7 @@ class SolverTable(Table):
     the step budget (an integer from 1 to `MAX_STEPS_LIMIT`)."""
 
     name: Literal[SOLVERS] = "tsit5"  # type: ignore[valid-type]  # the solver names
-    rtol: Positive = 1e-8
+    rtol: Fraction = 1e-8
     atol: Positive = 1e-10
     max_steps: Annotated[int, Field(ge=1, le=MAX_STEPS_LIMIT)] = 100_000
 

@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 
 from .._options import MAX_STEPS_LIMIT
-from .schema import Name, NonNegative, Number, Positive, Table
+from .schema import Fraction, Name, NonNegative, Number, Positive, Table
 
 # The quantities a study may vary, and the outputs it may keep (the names in the
 # file; see `study_quantities`).
@@ -75,7 +75,7 @@ class StudyTimeTable(Table):
 class StudySolverTable(Table):
     """`[solver]`: replaces the scenario's tolerances and step budget, key by key."""
 
-    rtol: Positive | None = None
+    rtol: Fraction | None = None
     atol: Positive | None = None
     max_steps: Annotated[int, Field(ge=1, le=MAX_STEPS_LIMIT)] | None = None
 

@@ -111,8 +111,8 @@ def identify(
       steps in a row, in an ever smaller trust region, find no lower loss. A plain
       optax optimiser (no line search), whose steps its learning rate sets, has
       converged only where no entry of the loss's gradient in $u$ exceeds
-      `PLAIN_GTOL` (1e-6) times the loss as well; otherwise it stops as
-      `"stalled"`.
+      `PLAIN_GTOL` (1e-6) times the loss at the start as well; otherwise it
+      stops as `"stalled"`.
     - `progress`: print iteration, loss and gradient norm while fitting.
     - `solver`, `sim_rtol`, `sim_atol`, `max_sim_steps`, `gimbal_tol`, `link_tol`:
       passed to `simulate` (as `solver`, `rtol`, `atol`, `max_steps`, ...).

@@ -56,8 +56,9 @@ MAX_HALVINGS = 30
 # A plain optimiser (no line search) takes steps set by its learning rate, so a
 # small step is no sign of an optimum by itself: it has converged only where, in
 # addition, no entry of the loss's gradient in u exceeds this fraction of the loss
-# (for log-parameters: a 1 % change of any parameter changes the loss by at most
-# 1e-8 of itself, to first order).
+# at the start (for log-parameters: a 1 % change of any parameter changes the loss
+# by at most 1e-8 of the start's, to first order; the start's loss, not the
+# current one, which falls to zero at an exact fit faster than the gradient).
 PLAIN_GTOL = 1e-6
 
 
@@ -508,15 +509,16 @@ def optax_minimise(
             value, grad = value_new, grad_new
         if done and not linesearch:
             slope = float(np.max(np.abs(np.asarray(grad)))) / max(
-                abs(float(value)), np.finfo(float).tiny
+                abs(trace.loss_history[0]), np.finfo(float).tiny
             )
             if slope > PLAIN_GTOL:
                 trace.status = "stalled"
                 trace.reason = (
                     f"the last step was below xtol = {xtol} or ftol = {ftol}, but the "
                     f"gradient is not small (its largest entry is {slope:.3g} times "
-                    f"the loss, above {PLAIN_GTOL:g}): the optimiser's steps are set "
-                    f"by its learning rate; raise it, or use the default method"
+                    f"the loss at the start, above {PLAIN_GTOL:g}): the optimiser's "
+                    f"steps are set by its learning rate; raise it, or use the "
+                    f"default method"
                 )
                 break
         if done:

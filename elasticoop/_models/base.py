@@ -11,7 +11,7 @@ from jaxtyping import ArrayLike, Float
 from .._body import RigidBody, kinetic_energy
 from .._custom_types import BoolScalar, DofMatrix, Scalar, State
 from .._rotations import AbstractRotation, get_rotation
-from .._validation import is_concrete
+from .._validation import is_concrete, xp
 
 # Eigenvalues below this fraction of the largest count as zero in `rank K`.
 RANK_RTOL = 1e-9
@@ -33,19 +33,23 @@ class AbstractElasticModel(eqx.Module):
 
     @abc.abstractmethod
     def elastic_admissible(self) -> BoolScalar:
-        """Whether the elastic parameters pass the checks of construction."""
+        """Whether the elastic parameters pass the checks of construction (part
+        of `admissible`), by `xp` so that it works traced or not."""
 
     def admissible(self) -> BoolScalar:
         """Whether the parameters pass the checks of construction (bodies,
         $g \\ge 0$, the elastic parameters), traced or not: for a model whose
         values were changed afterwards (`eqx.tree_at`, a Monte Carlo draw), which
-        no constructor has checked. Evaluated by NumPy when the values are
+        no constructor has checked (the ranges and finiteness; not the rank of
+        an immobile model's K). Evaluated by NumPy when the values are
         concrete."""
         # NumPy leaves where concrete: JAX operators on concrete arrays would still
         # be staged into a surrounding `jit`
         model = jax.tree.map(np.asarray, self) if is_concrete(self) else self
+        np_ = xp(model.gravity)
         return (
             model.bodies.admissible()
+            & np_.isfinite(model.gravity)
             & (model.gravity >= 0)
             & model.elastic_admissible()
         )

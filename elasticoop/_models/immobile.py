@@ -54,8 +54,11 @@ def _asymmetry_and_lowest_eigenvalue(matrix):
 def symmetric_psd(matrix) -> BoolScalar:
     """Whether `matrix` passes `check_symmetric_psd`, traced or not (by NumPy
     when concrete)."""
-    scale, asym, low = _asymmetry_and_lowest_eigenvalue(matrix)
-    return (asym <= SYMMETRY_RTOL * scale) & (low >= -PSD_RTOL * scale)
+    np_ = xp(matrix)
+    finite = np_.all(np_.isfinite(matrix))
+    # (eigenvalues of a finite stand-in: NumPy's fail on NaN)
+    scale, asym, low = _asymmetry_and_lowest_eigenvalue(np_.where(finite, matrix, 0.0))
+    return finite & (asym <= SYMMETRY_RTOL * scale) & (low >= -PSD_RTOL * scale)
 
 
 def check_stiffness(K, n_bodies: int):
@@ -131,8 +134,13 @@ class ImmobileModel(AbstractElasticModel):
         return autodiff_restoring_forces(self, y, ydot)
 
     def elastic_admissible(self) -> BoolScalar:
-        """K and D symmetric positive semidefinite."""
-        return symmetric_psd(self.K) & symmetric_psd(self.D)
+        """K and D finite and symmetric positive semidefinite, Y_0 finite."""
+        np_ = xp(self.y0)
+        return (
+            symmetric_psd(self.K)
+            & symmetric_psd(self.D)
+            & np_.all(np_.isfinite(self.y0))
+        )
 
     def stiffness_matrix(
         self, y: Float[ArrayLike, "bodies 6"] | None = None

@@ -301,12 +301,18 @@ class MobileModel(AbstractElasticModel):
         return per_body(elastic), per_body(damping)
 
     def elastic_admissible(self) -> BoolScalar:
-        """Stiffness, damping and rest lengths >= 0."""
+        """Stiffness, damping and rest lengths finite and >= 0, rest angles
+        finite."""
         np_ = xp(self.stiffness, self.damping, self.rest_length)
+
+        def finite_nonnegative(x):
+            return np_.all(np_.isfinite(x) & (x >= 0))
+
         return (
-            np_.all(self.stiffness >= 0)
-            & np_.all(self.damping >= 0)
-            & np_.all(self.rest_length >= 0)
+            finite_nonnegative(self.stiffness)
+            & finite_nonnegative(self.damping)
+            & finite_nonnegative(self.rest_length)
+            & np_.all(np_.isfinite(self.rest_angles))
         )
 
     def stiffness_matrix(

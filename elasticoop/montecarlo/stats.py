@@ -150,12 +150,14 @@ def exceedance_probability(
     if np.any(np.isnan(level)):
         raise ValueError(f"threshold must not be NaN, got {threshold!r}")
     try:
-        np.broadcast_shapes(level.shape, x.shape[1:])
+        fits = np.broadcast_shapes(level.shape, x.shape[1:]) == x.shape[1:]
     except ValueError:
+        fits = False
+    if not fits:
         raise ValueError(
             f"threshold of shape {level.shape} does not broadcast to the shape "
             f"{x.shape[1:]} of {name!r} per sample (dims {dims})"
-        ) from None
+        )
     exceed = np.asarray(x.values > level)
     if failures == "exclude":
         k, n = exceed[ok].sum(axis=0), int(ok.sum())

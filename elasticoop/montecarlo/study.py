@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._forces import check_force
+from .._forces import check_force, force_admissible
 from .._models import AbstractElasticModel, MobileModel
 from .._naming import (
     body_names as checked_body_names,
@@ -469,9 +469,10 @@ class _Marker:
 def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dict:
     """Draw, simulate and reduce sample `index`: its record (sample number,
     status, event time, parameter values, outputs). A sample whose draws are not
-    finite, or give a model that no constructor would accept (a mass, a principal
-    moment or, for the mobile model, a stiffness, damping or rest length out of
-    range: `AbstractElasticModel.admissible`), is simulated at the nominal values
+    finite, or give a model or force that no constructor would accept (a mass, a
+    principal moment or, for the mobile model, a stiffness, damping or rest length
+    out of range, a lift of no duration: `AbstractElasticModel.admissible`,
+    `force_admissible`), is simulated at the nominal values
     and reported as `INVALID_SAMPLE`, with the values drawn. `batch_loop`: passed to
     `simulate` (a `vmap` over samples integrates them in one loop)."""
     raw = draw(study, index, strata_row)
@@ -481,7 +482,7 @@ def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dic
     drawn = study.inputs
     for p in study.parameters:
         drawn = p.apply(drawn, raw[p.name])
-    valid = valid & drawn.model.admissible()
+    valid = valid & drawn.model.admissible() & force_admissible(drawn.forces)
     inputs, values = study.inputs, {}
     for p in study.parameters:
         fallback = 1.0 if p.relative else p.nominal(study.inputs)
