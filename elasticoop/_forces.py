@@ -343,7 +343,9 @@ class PoseTracking(AbstractForce):
     `start` $t_0$ [s]. Every field is stored as a float64 array, whatever it is
     given as (Python numbers or lists too), and checked when concrete: the force
     is then a pytree of arrays that can be differentiated, `vmap`-ped and batched
-    like any other input.
+    like any other input (a batch of forces: build one per set of values and stack
+    their fields, `jax.tree.map(lambda *x: jnp.stack(x), *forces)`, or build them
+    inside the `vmap`).
     """
 
     y_ref: Float[Array, "m 6"] = eqx.field(converter=_float64)  # initial poses

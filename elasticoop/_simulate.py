@@ -307,12 +307,15 @@ def _check_links_open(model: MobileModel, y_init: State, link_tol: float) -> Non
     """Raise `ValueError` if a link of the concrete `y_init` starts at or below
     the collapse threshold: the stop condition fires only when a link falls
     through it, so a run started below it would go on unchecked."""
-    margin = np.asarray(_link_margin(model, jnp.asarray(y_init), link_tol))
+    # in NumPy: JAX operations one by one would each compile on first use
+    y, pairs = np.asarray(y_init), model.pairs
+    lengths = np.linalg.norm(y[pairs[:, 0], :3] - y[pairs[:, 1], :3], axis=-1)
+    rest_lengths = np.asarray(model.rest_length)
+    margin = np.where(rest_lengths > 0, lengths - link_tol * rest_lengths, np.inf)
     if np.any(margin <= 0):
         k = int(np.argmin(margin))
-        i, j = (int(v) for v in model.pairs[k])
-        length = float(np.asarray(model.link_lengths(jnp.asarray(y_init)))[k])
-        rest = float(np.asarray(model.rest_length)[k])
+        i, j = (int(v) for v in pairs[k])
+        length, rest = float(lengths[k]), float(rest_lengths[k])
         raise ValueError(
             f"y_init: connection {k} between bodies {i} and {j} starts collapsed: "
             f"|r_i - r_j| = {length:.6g} m is not above link_tol x rest length = "

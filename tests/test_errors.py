@@ -373,6 +373,14 @@ def test_admissible_repeats_the_checks_of_construction():
         "negative gravity": (lambda m: m.gravity, jnp.asarray(-9.81)),
     }
     admissible = jax.jit(lambda m: m.admissible())
+    # traced leaves beside concrete ones
+    angles = jnp.stack([MODEL.rest_angles, MODEL.rest_angles.at[0, 0].set(jnp.nan)])
+    np.testing.assert_array_equal(
+        jax.vmap(lambda a: eqx.tree_at(lambda m: m.rest_angles, MODEL, a).admissible())(
+            angles
+        ),
+        [True, False],
+    )
     for name, (where, value) in changes.items():
         changed = eqx.tree_at(where, MODEL, value)
         assert not bool(changed.admissible()), name
@@ -385,10 +393,15 @@ def test_admissible_repeats_the_checks_of_construction():
     assert bool(immobile.admissible())
     indefinite = K.copy()
     indefinite[6, 6] = -1.0
-    asymmetric = K + np.eye(12, k=1)
-    for bad in (indefinite, asymmetric):
+    coupled = K + np.eye(12, k=1)  # symmetric part couples a null direction
+    for bad in (indefinite, coupled):
         changed = eqx.tree_at(lambda m: m.K, immobile, jnp.asarray(bad))
         assert not bool(changed.admissible())
+    # only the symmetric part enters the energy: a skew part is no instability
+    skew = np.zeros((12, 12))
+    skew[7, 8], skew[8, 7] = 5.0, -5.0
+    changed = eqx.tree_at(lambda m: m.K, immobile, jnp.asarray(K + skew))
+    assert bool(changed.admissible())
 
 
 def _pose_tracking(**change):

@@ -347,9 +347,8 @@ def test_draws_no_constructor_accepts_are_invalid_samples():
             "stiffness", lambda m: m.stiffness, mc.Normal(1.0, 0.6), relative=True
         ),
     ]
-    ds = mc.run_study(
-        _study(params, n_samples=16), batch_width=BATCH_WIDTH, progress=False
-    )
+    study = _study(params, n_samples=16)
+    ds = mc.run_study(study, batch_width=BATCH_WIDTH, progress=False)
     mass, stiffness = ds["mass"].values, ds["stiffness"].values
     bad = np.any(mass <= 0, axis=1) | np.any(stiffness < 0, axis=(1, 2))
     assert bad.any() and (~bad).any()
@@ -357,9 +356,13 @@ def test_draws_no_constructor_accepts_are_invalid_samples():
     np.testing.assert_array_equal(status[bad], mc.INVALID_SAMPLE)
     np.testing.assert_array_equal(status[~bad], eo.Status.SUCCESS)
     assert np.all(np.isnan(ds["peak_force"].values[bad]))
+    # local sensitivities flag the same samples
+    pair = [int(np.flatnonzero(bad)[0]), int(np.flatnonzero(~bad)[0])]
+    local = mc.local_sensitivities(study, indices=pair, batch_width=2)
+    np.testing.assert_array_equal(local["status"], status[pair])
     # the values drawn are recorded, as `sample_parameters` gives them (to the
     # last bits: another compiled program)
-    drawn = mc.sample_parameters(_study(params, n_samples=16))
+    drawn = mc.sample_parameters(study)
     np.testing.assert_allclose(mass, drawn["mass"], rtol=1e-14)
     np.testing.assert_allclose(stiffness, drawn["stiffness"], rtol=1e-14)
     # a valid sample is what `simulate` gives for its values

@@ -171,15 +171,27 @@ def gauss_newton_uncertainty(
 def check_identifiability_thresholds(rcond, max_relative_stderr) -> None:
     """`rcond` in [0, 1) and `max_relative_stderr` > 0, or a `ValueError` naming
     them (NaN or a negative value silently flagged every parameter, or none)."""
-    if not (isinstance(rcond, numbers.Real) and 0 <= float(rcond) < 1):
+    if not (_real_scalar(rcond) and 0 <= float(rcond) < 1):
         raise ValueError(f"rcond must be a number in [0, 1), got {rcond!r}")
     if not (
-        isinstance(max_relative_stderr, numbers.Real)
-        and 0 < float(max_relative_stderr) <= math.inf
+        _real_scalar(max_relative_stderr) and 0 < float(max_relative_stderr) <= math.inf
     ):
         raise ValueError(
             f"max_relative_stderr must be a number > 0, got {max_relative_stderr!r}"
         )
+
+
+def _real_scalar(x) -> bool:
+    """A real number: a Python or NumPy one, or a 0-d array of one."""
+    if isinstance(x, bool):
+        return False
+    if isinstance(x, numbers.Real):
+        return True
+    try:
+        arr = np.asarray(x)
+    except (TypeError, ValueError):
+        return False
+    return arr.ndim == 0 and arr.dtype.kind in "iuf"
 
 
 def project_out(J, nuisance, rcond: float = 1e-8):

@@ -134,11 +134,18 @@ class ImmobileModel(AbstractElasticModel):
         return autodiff_restoring_forces(self, y, ydot)
 
     def elastic_admissible(self) -> BoolScalar:
-        """K and D finite and symmetric positive semidefinite, Y_0 finite."""
-        np_ = xp(self.y0)
+        """The symmetric parts of K and D positive semidefinite, K, D and Y_0
+        finite. (Only the symmetric parts enter $\\Pi$ and $R$: a draw that
+        perturbs the entries one by one is not symmetric, but is admissible when
+        its symmetric parts are stable.)"""
+        np_ = xp(self.K, self.D, self.y0)
+
+        def symmetric_part(M):
+            return 0.5 * (M + M.T)
+
         return (
-            symmetric_psd(self.K)
-            & symmetric_psd(self.D)
+            symmetric_psd(symmetric_part(self.K))
+            & symmetric_psd(symmetric_part(self.D))
             & np_.all(np_.isfinite(self.y0))
         )
 

@@ -303,7 +303,7 @@ class MobileModel(AbstractElasticModel):
     def elastic_admissible(self) -> BoolScalar:
         """Stiffness, damping and rest lengths finite and >= 0, rest angles
         finite."""
-        np_ = xp(self.stiffness, self.damping, self.rest_length)
+        np_ = xp(self.stiffness, self.damping, self.rest_length, self.rest_angles)
 
         def finite_nonnegative(x):
             return np_.all(np_.isfinite(x) & (x >= 0))

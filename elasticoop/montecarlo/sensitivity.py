@@ -12,6 +12,8 @@ to $\\operatorname{Var}(y)$ (first-order variance decomposition); `variance_rank
 sorts the parameters by $V_j / \\sum_k V_k$.
 """
 
+import numbers
+
 import diffrax
 import equinox as eqx
 import jax
@@ -23,15 +25,20 @@ from .._status import Status
 from .execution import _variables
 from .sampling import as_sample_indices, sample_parameters
 from .store import axis_labels
-from .study import Study
+from .study import INVALID_SAMPLE, Study, admissible_inputs
 
 
 def _outputs_at(study: Study, values: dict) -> tuple[dict, jax.Array]:
+    """The outputs at the parameter values, and the status (`INVALID_SAMPLE`
+    where the values give inputs no constructor would accept, as in `run_study`;
+    the outputs are then those of the values as given)."""
     inputs = study.inputs
     for p in study.parameters:
         inputs = eqx.tree_at(p._select, inputs, values[p.name])
+    valid = admissible_inputs(inputs)
     traj = study.simulate(inputs, adjoint=diffrax.ForwardMode())
-    return {name: out(traj) for name, out in study.outputs.items()}, traj.status
+    status = jnp.where(valid, traj.status, INVALID_SAMPLE).astype(jnp.int32)
+    return {name: out(traj) for name, out in study.outputs.items()}, status
 
 
 @eqx.filter_jit
@@ -61,10 +68,11 @@ def local_sensitivities(study: Study, indices=None, batch_width: int = 8) -> xr.
     """
     if (
         isinstance(batch_width, bool)
-        or not isinstance(batch_width, int)
+        or not isinstance(batch_width, numbers.Integral)
         or batch_width < 1
     ):
         raise ValueError(f"batch_width must be a positive integer, got {batch_width!r}")
+    batch_width = int(batch_width)
     if indices is None:
         indices = np.arange(study.n_samples)
     indices = as_sample_indices(indices, study.n_samples)

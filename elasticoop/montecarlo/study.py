@@ -462,6 +462,13 @@ def _check_labelled(what: str, dims, shape, labels: dict) -> None:
             )
 
 
+def admissible_inputs(inputs: Inputs):
+    """Whether the model and the forces of `inputs` pass their constructors'
+    checks (`AbstractElasticModel.admissible`, `force_admissible`), traced or
+    not."""
+    return inputs.model.admissible() & force_admissible(inputs.forces)
+
+
 class _Marker:
     """A leaf that marks the one a parameter selects."""
 
@@ -482,7 +489,7 @@ def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dic
     drawn = study.inputs
     for p in study.parameters:
         drawn = p.apply(drawn, raw[p.name])
-    valid = valid & drawn.model.admissible() & force_admissible(drawn.forces)
+    valid = valid & admissible_inputs(drawn)
     inputs, values = study.inputs, {}
     for p in study.parameters:
         fallback = 1.0 if p.relative else p.nominal(study.inputs)
