@@ -20,6 +20,7 @@ from ._custom_types import (
     Times,
     Validated,
 )
+from ._error_norm import rms_norm
 from ._event_location import locate_event
 from ._forces import (
     AbstractForce,
@@ -397,7 +398,7 @@ def _solve(
     # No root finder: the solve ends at the end of the step in which a condition
     # changed sign, and `locate_event` finds the crossing in that step.
     controller: diffrax.AbstractAdaptiveStepSizeController
-    controller = diffrax.PIDController(rtol=rtol, atol=atol)
+    controller = diffrax.PIDController(rtol=rtol, atol=atol, norm=rms_norm)
     jump_ts = jump_times(force)
     if jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
