@@ -45,6 +45,7 @@ from _timing import interleaved_best_times  # noqa: E402
 
 import elasticoop as eo  # noqa: E402
 from elasticoop import _simulate, default_scenario  # noqa: E402
+from elasticoop._error_norm import rms_norm  # noqa: E402
 from elasticoop._forces import check_force  # noqa: E402
 
 
@@ -179,7 +180,9 @@ def stepwise_backward(scenario):
         x0,
         parameters(s.model),
         saveat=diffrax.SaveAt(t0=True, steps=True),
-        stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-10),  # simulate's
+        stepsize_controller=diffrax.PIDController(  # simulate's
+            rtol=1e-8, atol=1e-10, norm=rms_norm
+        ),
         max_steps=4096,
     )
     n = int(sol.stats["num_accepted_steps"])

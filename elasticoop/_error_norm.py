@@ -1,8 +1,9 @@
 """The error norm of `simulate`'s step-size controller.
 
-`rms_norm` has the value and the derivative of diffrax's default error norm
-(`optimistix.rms_norm`, the root mean square of the entries), with the sum of the
-squares written as additions of halves instead of a dot product. Under `vmap` (the
+`rms_norm` has the value (to rounding: the sum's order differs) and the derivative
+of diffrax's default error norm (`optimistix.rms_norm`, the root mean square of the
+entries), with the sum of the squares written as additions of halves instead of a
+dot product. Under `vmap` (the
 batch loop of `run_study`) XLA's CPU backend compiles that dot product of short
 vectors, batched, to a library kernel with a large fixed cost: on a 2-core x86_64
 CPU it took about 33 us of each step of 128 samples of 38 entries, against 26 us
@@ -10,6 +11,8 @@ for the vector field's main loop at one stage, and `python benchmarks/montecarlo
 (both cores) ran 4096 samples in 4.96-4.99 s with it and 4.62-4.63 s with
 `rms_norm`.
 """
+
+import math
 
 import jax
 import jax.numpy as jnp
@@ -20,15 +23,17 @@ from ._custom_types import Scalar
 
 
 def rms_norm(x: PyTree[Array]) -> Scalar:
-    """$\\sqrt{\\sum_i x_i^2 / n}$ over the $n$ entries of the arrays of `x` (0 for
-    none); its derivative is optimistix's (0 where the norm is 0)."""
+    """$\\sqrt{\\sum_i x_i^2 / n}$ over the $n$ real entries of the arrays of `x`
+    (0 for none); its derivative is optimistix's (0 where the norm is 0)."""
     leaves = jax.tree.leaves(x)
+    if any(jnp.iscomplexobj(leaf) for leaf in leaves):
+        raise TypeError("rms_norm takes real arrays (the state simulate integrates)")
     size = sum(np.size(leaf) for leaf in leaves)
     if size == 0:
         dtype = jnp.result_type(*leaves) if leaves else jnp.result_type(float)
         return jnp.zeros((), dtype)
     flat = jnp.concatenate([jnp.ravel(leaf) for leaf in leaves])
-    return _root_sum_squares(flat) / np.sqrt(size)
+    return _root_sum_squares(flat) / math.sqrt(size)
 
 
 @jax.custom_jvp
