@@ -37,7 +37,7 @@ from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions, check_initial_ste
 from ._status import Status, status_message
 from ._step_control import MIN_STEP_ULPS, StopFailedSteps
 from ._trajectory import Trajectory
-from ._validation import as_float_array, check_times, is_concrete
+from ._validation import as_float_array, check_times, is_concrete, xp
 
 # The state diffrax integrates: Y, its rate, the work done by the applied forces and
 # the energy dissipated, packed into one vector `(12 bodies + 2,)` (`_pack`): the
@@ -297,11 +297,13 @@ def _regularity(model: AbstractElasticModel, y: State) -> BodyScalars:
 
 
 def _link_margin(
-    model: MobileModel, y: State, link_tol: float
-) -> Float[Array, " connections"]:
+    model: MobileModel, y: Float[Array | np.ndarray, "bodies 6"], link_tol: float
+) -> Float[Array | np.ndarray, " connections"]:
     """$|r_i - r_j| - tol\\,\\rho_0$ per link; links with $\\rho_0 = 0$ never stop."""
-    margin = model.link_lengths(y) - link_tol * model.rest_length
-    return jnp.where(model.rest_length > 0, margin, jnp.inf)
+    np_ = xp(y, model.rest_length)  # NumPy for `_check_links_open`
+    d = y[model.pairs[:, 0], :3] - y[model.pairs[:, 1], :3]
+    margin = np_.sqrt(np_.sum(d * d, axis=-1)) - link_tol * model.rest_length
+    return np_.where(model.rest_length > 0, margin, np_.inf)
 
 
 def _check_links_open(model: MobileModel, y_init: State, link_tol: float) -> None:
@@ -309,14 +311,14 @@ def _check_links_open(model: MobileModel, y_init: State, link_tol: float) -> Non
     the collapse threshold: the stop condition fires only when a link falls
     through it, so a run started below it would go on unchecked."""
     # in NumPy: JAX operations one by one would each compile on first use
-    y, pairs = np.asarray(y_init), model.pairs
-    lengths = np.linalg.norm(y[pairs[:, 0], :3] - y[pairs[:, 1], :3], axis=-1)
-    rest_lengths = np.asarray(model.rest_length)
-    margin = np.where(rest_lengths > 0, lengths - link_tol * rest_lengths, np.inf)
+    model = jax.tree.map(np.asarray, model)
+    y = np.asarray(y_init)
+    margin = _link_margin(model, y, link_tol)
     if np.any(margin <= 0):
         k = int(np.argmin(margin))
-        i, j = (int(v) for v in pairs[k])
-        length, rest = float(lengths[k]), float(rest_lengths[k])
+        i, j = (int(v) for v in model.pairs[k])
+        rest = float(model.rest_length[k])
+        length = float(margin[k]) + link_tol * rest
         raise ValueError(
             f"y_init: connection {k} between bodies {i} and {j} starts collapsed: "
             f"|r_i - r_j| = {length:.6g} m is not above link_tol x rest length = "

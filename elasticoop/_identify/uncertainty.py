@@ -29,7 +29,6 @@ failed decomposition), every quantity is NaN and `Uncertainty.reason` says why.
 """
 
 import dataclasses
-import math
 import numbers
 import warnings
 
@@ -173,9 +172,7 @@ def check_identifiability_thresholds(rcond, max_relative_stderr) -> None:
     them (NaN or a negative value silently flagged every parameter, or none)."""
     if not (_real_scalar(rcond) and 0 <= float(rcond) < 1):
         raise ValueError(f"rcond must be a number in [0, 1), got {rcond!r}")
-    if not (
-        _real_scalar(max_relative_stderr) and 0 < float(max_relative_stderr) <= math.inf
-    ):
+    if not (_real_scalar(max_relative_stderr) and float(max_relative_stderr) > 0):
         raise ValueError(
             f"max_relative_stderr must be a number > 0, got {max_relative_stderr!r}"
         )

@@ -490,11 +490,12 @@ def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dic
     for p in study.parameters:
         drawn = p.apply(drawn, raw[p.name])
     valid = valid & admissible_inputs(drawn)
-    inputs, values = study.inputs, {}
+    inputs = study.inputs
     for p in study.parameters:
         fallback = 1.0 if p.relative else p.nominal(study.inputs)
         inputs = p.apply(inputs, jnp.where(valid, raw[p.name], fallback))
-        values[p.name] = jnp.where(valid, p.nominal(inputs), p.nominal(drawn))
+    # the values drawn (those simulated where valid)
+    values = {p.name: p.nominal(drawn) for p in study.parameters}
     traj = study.simulate(inputs, batch_loop=batch_loop)
     outputs = {
         name: jnp.where(valid, out(traj), jnp.nan)
