@@ -1,4 +1,5 @@
 import os
+import shutil
 import tempfile
 
 import jax
@@ -8,13 +9,17 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 # The command line keeps compiled executables on disk; the tests use a folder of
-# their own rather than the user's cache: one per test run, shared by the pytest-xdist
-# workers and the processes the tests start, so that a program one of them compiled
-# is loaded by the others (JAX writes each entry atomically).
-_run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
-if _run is None:
-    _cache = tempfile.mkdtemp(prefix="elasticoop-")
-else:
-    _cache = os.path.join(tempfile.gettempdir(), f"elasticoop-tests-{_run}")
-    os.makedirs(_cache, exist_ok=True)
-os.environ.setdefault("ELASTICOOP_CACHE_DIR", _cache)
+# their own rather than the user's cache: one per test run, made by the process that
+# imports this first (pytest, or pytest-xdist's controller) and inherited through
+# the environment by the pytest-xdist workers and the processes the tests start, so
+# that a program one of them compiled is loaded by the others (JAX writes each entry
+# atomically). The process that made it removes it when the run ends.
+_own_cache = None
+if "ELASTICOOP_CACHE_DIR" not in os.environ:
+    _own_cache = tempfile.mkdtemp(prefix="elasticoop-tests-")
+    os.environ["ELASTICOOP_CACHE_DIR"] = _own_cache
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _own_cache is not None:
+        shutil.rmtree(_own_cache, ignore_errors=True)
