@@ -27,6 +27,16 @@ evaluates its stage too, so replaying the step within it costs nothing more); an
 measured, the backward pass of the plainest such adjoint (`stepwise_backward`),
 whose time per step beyond its 6 products is the cost of the step's own
 arithmetic and of the loop.
+
+The adjoints' own cost (what bounds the ratio whatever the product costs): the
+products replaced by stand-ins (`stand_in_product`, values wrong, timed only) that
+cost one evaluation of the vector field (the least any product can cost) or
+nothing, in diffrax's adjoint (a bare `diffrax.diffeqsolve` of simulate's vector
+field with its controller, outputs and `max_steps`, `checkpoints=2048`; against
+its own forward run) and in the stepwise adjoint. From these, the most the
+backward half of a product may cost for the stepwise adjoint to stay within 4x
+the forward run, and what autodiff's costs there. (At smoke size only the stand-in
+that evaluates the field.)
 """
 
 import sys
@@ -141,7 +151,7 @@ def per_evaluation(scenario, traj, n_evals: int) -> dict:
     return {"alone": (alone, args), "with_vjp": (with_vjp, args)}
 
 
-def stepwise_backward(scenario):
+def stepwise_backward(scenario, field=None):
     """The backward pass of the plainest discrete adjoint, as `(fn, args)` and the
     run's accepted steps. Given those steps (times and states, from
     `diffrax.diffeqsolve` with the same vector field and controller), one
@@ -154,9 +164,12 @@ def stepwise_backward(scenario):
     `jax.checkpoint`, so that it is evaluated again with its product (in one
     earlier run 54 against 67 us per step without `jax.checkpoint`). No step-size
     control, outputs or stop conditions: a replaying discrete adjoint with
-    everything but the steps taken away."""
+    everything but the steps taken away. `field`: the vector field whose
+    products are taken (default: `field_of_parameters`; `stand_in_product` for the
+    loop's own cost)."""
     s = scenario
-    field = field_of_parameters(s)
+    if field is None:
+        field = field_of_parameters(s)
     tableau = diffrax.Tsit5.tableau
     a = [tuple(float(v) for v in row) for row in tableau.a_lower]
     c = tuple(float(v) for v in tableau.c)
@@ -203,6 +216,69 @@ def stepwise_backward(scenario):
         )
 
     return (backward, (parameters(s.model),)), n
+
+
+def stand_in_product(field, evaluate: bool = True):
+    """`field` with a stand-in for its vector-Jacobian product, for timing only
+    (its values are wrong). With `evaluate`, the cotangents of the state and the
+    parameters come from one more evaluation of the field, at the state nudged by
+    the cotangent: a product costs at least that (it takes the field's
+    derivatives at that point), so an adjoint run with it gives the least time that
+    adjoint can take with any product, however written. Without, they are the
+    incoming cotangent scaled (no cost at all): what is left is the adjoint's own
+    cost."""
+
+    @jax.custom_vjp
+    def stand_in(t, x, params):
+        return field(t, x, params)
+
+    def forward(t, x, params):
+        return field(t, x, params), (t, x, params)
+
+    def backward(residuals, x_bar):
+        t, x, params = residuals
+        if evaluate:
+            value = field(t, x + 1e-12 * x_bar, params)
+        else:
+            value = -1e-3 * x_bar
+        total = jnp.sum(value)
+        return jnp.zeros_like(t), value, jax.tree.map(lambda p: total * p, params)
+
+    stand_in.defvjp(forward, backward)
+    return stand_in
+
+
+def bare_solve_losses(scenario, field):
+    """The trajectory loss of `make_loss` through a bare `diffrax.diffeqsolve` of
+    `field` (simulate's vector field, or a `stand_in_product`) with simulate's
+    solver, controller, outputs and `max_steps` but not its stop conditions,
+    differentiated by diffrax's adjoint with `checkpoints=2048`: `(forward,
+    gradient)`, both jitted functions of the parameters."""
+    s = scenario
+    target = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).y
+    target = target + 1e-3
+    x0 = _simulate._pack(s.y_init, s.ydot_init, jnp.zeros(()), jnp.zeros(()))
+
+    def loss(params):
+        sol = diffrax.diffeqsolve(
+            diffrax.ODETerm(field),
+            diffrax.Tsit5(),
+            s.ts[0],
+            s.ts[-1],
+            None,
+            x0,
+            params,
+            saveat=diffrax.SaveAt(ts=s.ts),
+            stepsize_controller=diffrax.PIDController(  # simulate's
+                rtol=1e-8, atol=1e-10, norm=rms_norm
+            ),
+            adjoint=diffrax.RecursiveCheckpointAdjoint(checkpoints=2048),
+            max_steps=100_000,
+        )
+        y = _simulate._unpack(sol.ys)[0]
+        return jnp.sum((y - target) ** 2)
+
+    return jax.jit(loss), jax.jit(jax.grad(loss))
 
 
 def batched(scenario, width: int, rounds: int) -> dict:
@@ -276,6 +352,18 @@ def run(quick: bool = False) -> dict:
     n_evals = 200 if quick else 20_000
     calls.update(per_evaluation(s, traj, n_evals))
     calls["stepwise_backward"], accepted = stepwise_backward(s)
+    field = field_of_parameters(s)
+    # (at smoke size only the stand-in that evaluates the field: each gradient
+    # compiles for seconds)
+    stand_ins = {"stand_in": stand_in_product(field)}
+    bare_forward, bare_gradient = bare_solve_losses(s, field)
+    calls["bare_forward"] = (bare_forward, (params,))
+    if not quick:
+        stand_ins["free"] = stand_in_product(field, evaluate=False)
+        calls["bare_gradient"] = (bare_gradient, (params,))
+    for name, f in stand_ins.items():
+        calls[f"stepwise_backward_{name}"], _ = stepwise_backward(s, f)
+        calls[f"bare_gradient_{name}"] = (bare_solve_losses(s, f)[1], (params,))
     times = interleaved_best_times(calls, rounds)
     t_forward = times["forward"]
     for row in rows:
@@ -298,6 +386,8 @@ def run(quick: bool = False) -> dict:
     vjp_us = 1e6 * times["with_vjp"] / n_evals
     products = accepted * 6 * 1e-6 * vjp_us
     backward = times["stepwise_backward"]
+    stand_in_backward = times["stepwise_backward_stand_in"]
+    bare = times["bare_forward"]
     decomposition = {
         "steps": steps,
         "accepted_steps": accepted,
@@ -311,6 +401,34 @@ def run(quick: bool = False) -> dict:
         "stepwise_backward_us_per_step": 1e6 * backward / accepted,
         "forward_plus_stepwise_backward_over_forward": (t_forward + backward)
         / t_forward,
+        # The adjoints' own cost: the products replaced by a stand-in that costs
+        # one evaluation of the vector field, or nothing (`stand_in_product`).
+        "bare_solve_forward_ms": 1e3 * bare,
+        **{
+            f"bare_solve_{name}_over_forward": times[f"bare_{name}"] / bare
+            for name in ("gradient", "gradient_stand_in", "gradient_free")
+            if f"bare_{name}" in times
+        },
+        **{
+            f"stepwise_backward_{name}_us_per_step": 1e6
+            * times[f"stepwise_backward_{name}"]
+            / accepted
+            for name in stand_ins
+        },
+        **{
+            f"forward_plus_stepwise_backward_{name}_over_forward": (
+                t_forward + times[f"stepwise_backward_{name}"]
+            )
+            / t_forward
+            for name in stand_ins
+        },
+        # What the backward half of a product may cost, at most, for the stepwise
+        # adjoint to stay within 4x the forward run (the stand-in's is one
+        # evaluation of the vector field), and what autodiff's costs there.
+        "stepwise_product_budget_for_4x_us": vf_us
+        + 1e6 * (3 * t_forward - stand_in_backward) / (6 * accepted),
+        "stepwise_autodiff_product_us": vf_us
+        + 1e6 * (backward - stand_in_backward) / (6 * accepted),
     }
     return {
         "batch_of_8": batch,
