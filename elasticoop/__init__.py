@@ -66,6 +66,7 @@ from ._simulate import (  # noqa: E402
     simulate as simulate,
 )
 from ._status import Status as Status  # noqa: E402
+from ._stepwise_adjoint import StepwiseAdjoint as StepwiseAdjoint  # noqa: E402
 from ._trajectory import Trajectory as Trajectory  # noqa: E402
 from ._version import __version__ as __version__  # noqa: E402
 

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from ._custom_types import Scalar
+from ._stepwise_adjoint import StepwiseAdjoint, check_solver, stepwise_solve
 
 
 def result_code(result: Any) -> int:
@@ -87,7 +88,9 @@ def integrate(
     max_steps: int,
     *,
     dt0: Scalar | float | None = None,
-    adjoint: diffrax.AbstractAdjoint = diffrax.RecursiveCheckpointAdjoint(),
+    adjoint: diffrax.AbstractAdjoint | StepwiseAdjoint = (
+        diffrax.RecursiveCheckpointAdjoint()
+    ),
     progress_meter: diffrax.AbstractProgressMeter = diffrax.NoProgressMeter(),
     batch_loop: bool = False,
 ) -> Outcome:
@@ -96,6 +99,8 @@ def integrate(
     $t$, $y$, `args`) falls from positive to non-positive (at the end of that
     step). `batch_loop`: under `jax.vmap`, one loop for the batch (see the module's
     docstring)."""
+    if isinstance(adjoint, StepwiseAdjoint):
+        check_solver(solver)
     setup = _Setup(y0, args, ts, dt0, controller)
     arrays, static = eqx.partition(setup, eqx.is_array)
 
@@ -103,8 +108,12 @@ def integrate(
     if conditions:
         event = diffrax.Event([_of_diffrax(c) for c in conditions], direction=False)
 
-    def diffrax_solve(arrays):
+    def run(arrays, keep_steps: bool = False):
+        """The solve, and with `keep_steps` the accepted steps' starts and the
+        end (for `StepwiseAdjoint`)."""
         setup = eqx.combine(arrays, static)
+        outputs = diffrax.SubSaveAt(ts=setup.ts, t1=True)
+        subs = (outputs, diffrax.SubSaveAt(t0=True, steps=True))
         sol = diffrax.diffeqsolve(
             diffrax.ODETerm(vector_field),
             solver,
@@ -113,22 +122,35 @@ def integrate(
             dt0=setup.dt0,
             y0=setup.y0,
             args=setup.args,
-            saveat=diffrax.SaveAt(ts=setup.ts, t1=True, controller_state=True),
+            saveat=diffrax.SaveAt(
+                subs=subs if keep_steps else outputs, controller_state=True
+            ),
             stepsize_controller=setup.controller,
-            adjoint=adjoint,
+            adjoint=diffrax.RecursiveCheckpointAdjoint()
+            if isinstance(adjoint, StepwiseAdjoint)
+            else adjoint,
             event=event,
             max_steps=max_steps,
             throw=False,
             progress_meter=progress_meter,
         )
-        return Outcome(
-            sol.ts,
-            sol.ys,
+        ts, ys = (sol.ts[0], sol.ys[0]) if keep_steps else (sol.ts, sol.ys)
+        outcome = Outcome(
+            ts,
+            ys,
             sol.result._value,
             () if event is None else tuple(sol.event_mask),
             sol.controller_state,
             jnp.asarray(sol.stats["num_steps"], jnp.int32),
         )
+        if keep_steps:
+            return outcome, sol.ts[1], sol.ys[1]
+        return outcome, None, None
+
+    def diffrax_solve(arrays):
+        if isinstance(adjoint, StepwiseAdjoint):
+            return stepwise_solve(run, vector_field, solver, static, arrays)
+        return run(arrays)[0]
 
     batchable = (
         batch_loop

@@ -36,6 +36,7 @@ from ._motion import PrescribedMotion
 from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions, check_initial_step
 from ._status import Status, status_message
 from ._step_control import MIN_STEP_ULPS, StopFailedSteps
+from ._stepwise_adjoint import StepwiseAdjoint
 from ._trajectory import Trajectory
 from ._validation import as_float_array, check_times, is_concrete, xp
 
@@ -78,7 +79,7 @@ def simulate(
     max_steps: int = 100_000,
     *,
     dt0: float | None = None,
-    adjoint: diffrax.AbstractAdjoint | None = None,
+    adjoint: diffrax.AbstractAdjoint | StepwiseAdjoint | None = None,
     throw: bool | None = None,
     gimbal_tol: float = GIMBAL_TOL,
     link_tol: float = LINK_TOL,
@@ -101,8 +102,10 @@ def simulate(
     - `rtol`, `atol`: tolerances of the adaptive step-size controller.
     - `max_steps`: the most steps the solver may take.
     - `dt0`: initial step, a positive number (default: chosen by diffrax).
-    - `adjoint`: diffrax adjoint for reverse-mode gradients (default
-      `RecursiveCheckpointAdjoint`).
+    - `adjoint`: how reverse-mode gradients are taken: a diffrax adjoint (default
+      `diffrax.RecursiveCheckpointAdjoint()`), or `StepwiseAdjoint()`, the
+      quicker discrete adjoint over the accepted steps (explicit Runge-Kutta
+      solvers; see its docstring).
     - `throw`: `None` (default) raises `SimulationError` for an early stop when the
       result is concrete, and reports it in `Trajectory.status` under `jit`/`vmap`/
       `grad` (each element of a batch on its own); `True` raises in both cases
@@ -340,7 +343,7 @@ def _solve(
     atol: float,
     max_steps: int,
     dt0: float | None,
-    adjoint: diffrax.AbstractAdjoint,
+    adjoint: diffrax.AbstractAdjoint | StepwiseAdjoint,
     gimbal_tol: float,
     link_tol: float,
     prescribed: PrescribedMotion | None,

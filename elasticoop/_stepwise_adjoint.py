@@ -1,0 +1,293 @@
+"""Reverse mode through the accepted steps of an explicit Runge-Kutta solve.
+
+`StepwiseAdjoint` is the discrete adjoint of the solution the solver computed,
+written as a rule of `integrate` (`equinox.filter_custom_vjp`) instead of diffrax's
+differentiation of its whole loop. The forward run also keeps the start
+$(t_n, x_n)$ of every accepted step; the backward pass goes from the last step to
+the first and, for step $n$ with $h = t_{n+1} - t_n$, replays its stages from $x_n$
+(stage inputs $X_i = x_n + \\sum_{j<i} a_{ij} K_j$, increments
+$K_i = h\\,f(t_n + c_i h, X_i)$, so $x_{n+1} = x_n + \\sum_i b_i K_i$), then applies
+the recurrences of the Runge-Kutta adjoint,
+
+$$\\bar K_i = b_i\\,\\bar x_{n+1} + \\bar K_i^{out}
+    + \\sum_{l > i} a_{li}\\,\\bar X_l, \\qquad
+  (\\bar X_i, \\bar p_i) = h\\,\\bar K_i^T \\frac{\\partial f}{\\partial (X, p)}(X_i),$$
+$$\\bar x_n = \\bar x_{n+1} + \\sum_i \\bar X_i + \\bar x_n^{out}, \\qquad
+  \\bar p = \\sum_n \\sum_i \\bar p_i,$$
+
+each vector-Jacobian product by autodiff of the vector field at its stage input
+(only the stages whose increment has a cotangent). The outputs enter through the
+solver's dense output: an output at $\\tau$ in step $n$ is linear in
+$(x_n, x_{n+1}, K_1, \\dots, K_s)$, and its cotangent adds to $\\bar x_n^{out}$,
+$\\bar x_{n+1}$ and $\\bar K^{out}$ with the interpolation's coefficients at $\\tau$.
+
+Each product is applied inside a `jax.lax.cond`, which XLA's CPU backend compiles
+apart from the replay: in `benchmarks/gradients.py`'s stepwise adjoint that took
+33 against 80 us per step of the default scenario. The times of the steps are held
+fixed (as in any adjoint over the steps taken): the derivative leaves out how the
+step-size controller's choices move with the parameters, a difference of the order
+of the solver's tolerance (the tests compare it with diffrax's adjoint, which
+includes it, and with finite differences).
+"""
+
+from collections.abc import Callable
+from typing import Any
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class StepwiseAdjoint(eqx.Module):
+    """Reverse-mode gradients of `simulate` through its accepted steps: pass
+    `adjoint=elasticoop.StepwiseAdjoint()`.
+
+    The discrete adjoint of the computed solution, replaying each accepted step
+    from its start and taking the products of the vector field at its stages (the
+    recurrences are in the docstring of the module `elasticoop._stepwise_adjoint`).
+    On the default scenario it is the quickest of the reverse modes
+    (`benchmarks/gradients.py`).
+
+    - Gradients with respect to the initial state and every floating-point array
+      of the model and the forces. Not with respect to the output times `ts`,
+      `dt0` or the tolerances (a `ValueError` says so), and the step times are
+      held fixed: the gradient differs from `diffrax.RecursiveCheckpointAdjoint`'s
+      by the controller's share, of the order of the tolerance.
+    - Reverse mode only (`jax.grad`, `jax.vjp`); for forward mode (`jax.jacfwd`)
+      use `diffrax.ForwardMode()`.
+    - Explicit Runge-Kutta solvers whose dense output is built from the stages
+      (Tsit5, the default, Dopri5, Bosh3, Heun, Ralston, Midpoint).
+    - Memory: the start of every accepted step, up to `max_steps` of them
+      ($(\\text{max\\_steps} + 1) \\times (12(m + 1) + 2)$ floats).
+    """
+
+
+def check_solver(solver: Any) -> None:
+    """A `ValueError` unless `StepwiseAdjoint` supports `solver`: an explicit
+    Runge-Kutta solver with a Butcher tableau whose dense output is built from its
+    stages (`solver.interpolation_cls(t0, t1, y0, y1, k)`, one `k` per stage)."""
+    tableau = getattr(solver, "tableau", None)
+    supported = (
+        isinstance(solver, diffrax.AbstractERK)
+        and isinstance(tableau, diffrax.ButcherTableau)
+        and _dense_stages(solver) == len(tableau.b_sol)
+    )
+    if not supported:
+        raise ValueError(
+            f"StepwiseAdjoint needs an explicit Runge-Kutta solver whose dense output "
+            f"is built from its stages (Tsit5, Dopri5, Bosh3, Heun, Ralston, "
+            f"Midpoint), got {type(solver).__name__}; use "
+            f"adjoint=diffrax.RecursiveCheckpointAdjoint() with this solver"
+        )
+
+
+def _dense_stages(solver: Any) -> int | None:
+    """How many stage increments the solver's dense output holds (its `k`)."""
+    term = diffrax.ODETerm(lambda t, y, args: -y)
+    y0 = jnp.zeros(1)
+
+    def step():
+        state = solver.init(term, 0.0, 1.0, y0, None)
+        return solver.step(term, 0.0, 1.0, y0, None, state, False)[2]
+
+    try:
+        dense = jax.eval_shape(step)
+    except Exception:  # not a solver of this kind
+        return None
+    k = dense.get("k") if isinstance(dense, dict) else None
+    return None if k is None else int(k.shape[0])
+
+
+def _interpolation_weights(solver, t0, t1, tau, stages: int):
+    """The coefficients of $(x_n, x_{n+1}, K_1, \\dots, K_s)$ in the solver's dense
+    output at `tau` in the step from `t0` to `t1` (it is linear in them)."""
+
+    def value(c):
+        interpolation = solver.interpolation_cls(
+            t0=t0, t1=t1, y0=c[0], y1=c[1], k=c[2:]
+        )
+        return interpolation.evaluate(tau)
+
+    return jax.grad(value)(jnp.zeros(stages + 2, dtype=jnp.result_type(t0)))
+
+
+def stepwise_solve(
+    run: Callable[[Any, bool], tuple[Any, Any, Any]],
+    vector_field: Callable,
+    solver: diffrax.AbstractERK,
+    static: Any,
+    arrays: Any,
+) -> Any:
+    """`run(arrays, keep_steps)[0]` (an `Outcome`), differentiated in reverse mode
+    as the module's docstring says. `run` returns `(outcome, step_ts, step_ys)`:
+    with `keep_steps`, the times and states at the start of each accepted step and
+    at the end (inf after the last), else `None`s. `arrays` and `static` are
+    `integrate`'s `_Setup` split by `eqx.partition`."""
+    tableau = solver.tableau
+    assert isinstance(tableau, diffrax.ButcherTableau)  # (`check_solver`)
+    b = np.asarray(tableau.b_sol, dtype=float)
+    a = [np.asarray(row, dtype=float) for row in tableau.a_lower]
+    c = np.concatenate([[0.0], np.asarray(tableau.c, dtype=float)])
+    stages = len(b)
+    # whether stage i's increment enters the step's result or a later stage (else
+    # only the dense output, and its product is taken only when an output has it)
+    used = [b[i] != 0 or any(a[m - 1][i] != 0 for m in range(i + 1, stages))
+            for i in range(stages)]  # fmt: skip
+
+    @eqx.filter_custom_vjp
+    def solve(arrays):
+        return run(arrays, False)[0]
+
+    @solve.def_fwd
+    def solve_fwd(perturbed, arrays):
+        outcome, step_ts, step_ys = run(arrays, True)
+        return outcome, (outcome.ts, step_ts, step_ys)
+
+    @solve.def_bwd
+    def solve_bwd(residuals, grad_outcome, perturbed, arrays):
+        _check_perturbed(perturbed)
+        out_ts, step_ts, step_ys = residuals
+        # products with respect to the perturbed arrays of `args` only
+        diff_args, other_args = eqx.partition(arrays.args, perturbed.args)
+
+        def f(t, x, d):
+            return vector_field(t, x, eqx.combine(d, other_args, static.args))
+
+        ys_bar = grad_outcome.ys
+        if ys_bar is None:
+            ys_bar = jnp.zeros((out_ts.shape[0], *step_ys.shape[1:]), step_ys.dtype)
+        n = jnp.sum(jnp.isfinite(step_ts), dtype=jnp.int32) - 1  # accepted steps
+        last = jnp.maximum(n - 1, 0)
+
+        # the outputs (all saves but the last, the end state): their steps and
+        # interpolation weights (none for outputs the run did not reach)
+        tau, tau_bar = out_ts[:-1], ys_bar[:-1]
+        reached = jnp.isfinite(tau)
+        tau = jnp.where(reached, tau, step_ts[0])
+        where = jnp.searchsorted(step_ts, tau, side="left").astype(jnp.int32)
+        where = jnp.clip(where - 1, 0, last)
+        # (outputs not reached come last: taken, with no weight, in the last step)
+        where = jnp.where(reached, where, last)
+        weights = jax.vmap(
+            lambda t0, t1, t: _interpolation_weights(solver, t0, t1, t, stages)
+        )(step_ts[where], step_ts[where + 1], tau)
+        weights = jnp.where(reached[:, None] & (n > 0), weights, 0.0)
+
+        zeros = jax.tree.map(jnp.zeros_like, diff_args)
+
+        def stage_inputs(k):
+            """The inputs $X_i$ of step `k`'s stages, replayed from its start."""
+            t0, t1 = step_ts[k], step_ts[k + 1]
+            h, x = t1 - t0, step_ys[k]
+            inputs, increments = [x], []
+            for i in range(1, stages):
+                t = _stage_time(t0, t1, h, c[i - 1])
+                increments.append(h * f(t, inputs[-1], diff_args))
+                terms = [a[i - 1][j] * increments[j] for j in range(i) if a[i - 1][j]]
+                inputs.append(x + sum(terms))
+            return jnp.stack(inputs)
+
+        def step_back(k, inputs, x_bar, p_bar, j):
+            """The cotangents before step `k` from those after it."""
+            t0, t1 = step_ts[k], step_ts[k + 1]
+            h = t1 - t0
+
+            # the outputs in this step (the outputs are in time order)
+            def add_output(inner):
+                j, x0_bar, x_bar, k_bar = inner
+                w, y_bar = weights[j], tau_bar[j]
+                return (
+                    j - 1,
+                    x0_bar + w[0] * y_bar,
+                    x_bar + w[1] * y_bar,
+                    k_bar + w[2:, None] * y_bar,
+                )
+
+            def in_step(inner):
+                return (inner[0] >= 0) & (where[jnp.maximum(inner[0], 0)] == k)
+
+            start = (j, jnp.zeros_like(x_bar), x_bar, jnp.zeros_like(inputs))
+            has_output = in_step(start)
+            j, x0_bar, x_bar, k_out = jax.lax.cond(
+                has_output,
+                lambda start: jax.lax.while_loop(in_step, add_output, start),
+                lambda start: start,
+                start,
+            )
+
+            stage_bars: list[Any] = [None] * stages
+            for i in reversed(range(stages)):
+                k_bar = b[i] * x_bar + k_out[i]
+                for m in range(i + 1, stages):
+                    if a[m - 1][i] != 0:
+                        k_bar = k_bar + a[m - 1][i] * stage_bars[m]
+                t_i = _stage_time(t0, t1, h, c[i])
+
+                def product(x_i, f_bar, t_i=t_i):
+                    _, pullback = jax.vjp(lambda y, d: f(t_i, y, d), x_i, diff_args)
+                    return pullback(f_bar)
+
+                # a branch of its own (compiled apart from the replay): taken for
+                # every stage that is used, and for one that only the dense
+                # output uses when the step has an output
+                predicate = (k >= 0) if used[i] else has_output
+                stage_bar, d_bar = jax.lax.cond(
+                    predicate,
+                    product,
+                    lambda x_i, f_bar: (jnp.zeros_like(x_i), zeros),
+                    inputs[i],
+                    h * k_bar,
+                )
+                stage_bars[i] = stage_bar
+                p_bar = jax.tree.map(jnp.add, p_bar, d_bar)
+            x_bar = x_bar + sum(stage_bars) + x0_bar
+            return x_bar, p_bar, j
+
+        def body(carry):
+            k, x_bar, p_bar, j = carry
+            x_bar, p_bar, j = step_back(k, stage_inputs(k), x_bar, p_bar, j)
+            return k - 1, x_bar, p_bar, j
+
+        _, x_bar, p_bar, j = jax.lax.while_loop(
+            lambda carry: carry[0] >= 0,
+            body,
+            (n - 1, ys_bar[-1], zeros, jnp.asarray(tau.shape[0] - 1, dtype=jnp.int32)),
+        )
+        # outputs left over (a run without a step): at the start, x_0 itself
+        left = reached & (jnp.arange(tau.shape[0], dtype=jnp.int32) <= j)
+        x_bar = x_bar + jnp.sum(jnp.where(left[:, None], tau_bar, 0.0), axis=0)
+
+        none = jax.tree.map(lambda _: None, arrays)
+        return eqx.tree_at(
+            lambda s: (s.y0, s.args), none, (x_bar, p_bar), is_leaf=_is_none
+        )
+
+    return solve(arrays)
+
+
+def _is_none(value: Any) -> bool:
+    return value is None
+
+
+def _stage_time(t0, t1, h, c_i: float):
+    """$t_n + c_i h$, exactly $t_{n+1}$ for $c_i = 1$ (as diffrax's stages)."""
+    if c_i == 0:
+        return t0
+    if c_i == 1:
+        return t1
+    return t0 + c_i * h
+
+
+def _check_perturbed(perturbed: Any) -> None:
+    """A `ValueError` if a gradient is asked with respect to what the adjoint does
+    not differentiate (output times, `dt0`, the controller's tolerances)."""
+    for name in ("ts", "dt0", "controller"):
+        if any(jax.tree.leaves(getattr(perturbed, name))):
+            raise ValueError(
+                f"StepwiseAdjoint differentiates with respect to the initial state "
+                f"and the model's and forces' parameters only, not the solve's "
+                f"{'output times ts' if name == 'ts' else name}; use "
+                f"adjoint=diffrax.RecursiveCheckpointAdjoint() for that"
+            )

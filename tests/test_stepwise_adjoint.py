@@ -1,0 +1,144 @@
+"""`StepwiseAdjoint` against diffrax's adjoint (an independent implementation of
+the discrete adjoint of the same solution) and central differences."""
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import Wave, three_body_model, three_body_state
+
+import elasticoop as eo
+
+MODEL = three_body_model()
+Y0 = three_body_state().at[1, :3].add(jnp.array([-0.01, 0.005, 0.01]))
+Y0 = Y0.at[2, 3:].add(jnp.array([0.02, -0.01, 0.03]))
+YDOT0 = jnp.zeros_like(Y0).at[0, :3].set(jnp.array([0.1, 0.0, 0.2]))
+LIFT = jnp.zeros((3, 6)).at[1:, 2].set(12.0)
+TS = jnp.linspace(0.0, 0.2, 21)
+TOL = dict(rtol=1e-10, atol=1e-12)
+# The two adjoints take the same steps and the same products, in another order.
+RTOL = 1e-10
+
+
+def loss(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
+    """Weighted squares of every output (all states, rates, work, dissipation),
+    as a function of stiffness, damping, masses, initial state and forces."""
+    stiffness, damping, mass, y0, force = params
+    model = eqx.tree_at(
+        lambda m: (m.stiffness, m.damping, m.bodies.mass),
+        MODEL,
+        (stiffness, damping, mass),
+    )
+    traj = eo.simulate(
+        model,
+        y0,
+        YDOT0,
+        TS,
+        forces=force,
+        solver=diffrax.Tsit5() if solver is None else solver,
+        adjoint=adjoint,
+        prescribed=prescribed,
+        max_steps=max_steps,
+        throw=False,
+        **TOL,
+    )
+    weights = jnp.arange(1.0, 1.0 + TS.shape[0])[:, None, None]
+    # (a run that stops early has NaN at the outputs it did not reach)
+    reached = jnp.all(jnp.isfinite(traj.y), axis=(1, 2))[:, None, None]
+    y = jnp.where(reached, traj.y, 0.0)
+    ydot = jnp.where(reached, traj.ydot, 0.0)
+    return (
+        jnp.sum(weights * (y - Y0) ** 2)
+        + jnp.sum(weights * ydot**2)
+        + jnp.sum(jnp.where(reached[:, 0, 0], traj.work + traj.dissipated, 0.0))
+    )
+
+
+PARAMS = (MODEL.stiffness, MODEL.damping, MODEL.bodies.mass, Y0, LIFT)
+
+
+def gradients(**kwargs):
+    """The gradients by both adjoints."""
+    ours = jax.jit(jax.grad(lambda p: loss(p, eo.StepwiseAdjoint(), **kwargs)))
+    theirs = jax.jit(jax.grad(lambda p: loss(p, None, **kwargs)))
+    return ours(PARAMS), theirs(PARAMS)
+
+
+def assert_close(ours, theirs, rtol=RTOL):
+    for name, a, b in zip(
+        ("stiffness", "damping", "mass", "y0", "forces"), ours, theirs, strict=True
+    ):
+        scale = float(jnp.max(jnp.abs(b)))
+        assert scale > 0, name
+        gap = float(jnp.max(jnp.abs(a - b))) / scale
+        assert gap < rtol, (name, gap)
+
+
+@pytest.mark.slow
+def test_equals_diffrax_adjoint_and_central_differences():
+    ours, theirs = gradients()
+    assert_close(ours, theirs)
+    # and one entry against central differences (the loss's rounding limits it)
+    h = 1e-4 * float(MODEL.stiffness[0, 2])
+    e = jnp.zeros_like(MODEL.stiffness).at[0, 2].set(h)
+    up = loss((PARAMS[0] + e, *PARAMS[1:]), None)
+    down = loss((PARAMS[0] - e, *PARAMS[1:]), None)
+    np.testing.assert_allclose(ours[0][0, 2], (up - down) / (2 * h), rtol=1e-5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "solver", [diffrax.Dopri5(), diffrax.Dopri8(), diffrax.Bosh3()], ids=type
+)
+def test_other_explicit_solvers(solver):
+    """Each solver's own tableau and dense output (Bosh3: cubic Hermite)."""
+    assert_close(*gradients(solver=solver))
+
+
+@pytest.mark.slow
+def test_prescribed_motion():
+    mask = np.zeros((3, 6), dtype=bool)
+    mask[1:, :] = True  # the grasps follow a swaying motion
+    amplitude = jnp.zeros((3, 6)).at[1:, 2].set(0.01).at[1:, 4].set(0.02)
+    prescribed = eo.PrescribedMotion(mask, Wave(Y0, amplitude))
+    assert_close(*gradients(prescribed=prescribed))
+
+
+@pytest.mark.slow
+def test_run_stopped_before_the_end():
+    """A run that ends at its step limit: the outputs it did not reach have no
+    cotangent, the others enter through the steps taken."""
+    ours, theirs = gradients(max_steps=40)
+    assert_close(ours, theirs)
+    traj = eo.simulate(
+        MODEL, Y0, YDOT0, TS, forces=LIFT, max_steps=40, throw=False, **TOL
+    )
+    assert traj.status == eo.Status.MAX_STEPS_REACHED
+    reached = np.all(np.isfinite(np.asarray(traj.y)), axis=(1, 2))
+    assert 1 < reached.sum() < TS.shape[0]
+
+
+def test_unsupported_solver_is_refused():
+    with pytest.raises(ValueError, match="StepwiseAdjoint needs an explicit"):
+        eo.simulate(
+            MODEL,
+            Y0,
+            YDOT0,
+            TS,
+            solver=diffrax.Kvaerno5(),
+            adjoint=eo.StepwiseAdjoint(),
+        )
+
+
+@pytest.mark.slow
+def test_output_times_are_not_differentiated():
+    def final_height(ts):
+        traj = eo.simulate(
+            MODEL, Y0, YDOT0, ts, adjoint=eo.StepwiseAdjoint(), throw=False
+        )
+        return traj.y[-1, 0, 2]
+
+    with pytest.raises(ValueError, match="output times ts"):
+        jax.grad(final_height)(TS)
