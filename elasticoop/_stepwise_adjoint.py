@@ -22,8 +22,12 @@ $(x_n, x_{n+1}, K_1, \\dots, K_s)$, and its cotangent adds to $\\bar x_n^{out}$,
 $\\bar x_{n+1}$ and $\\bar K^{out}$ with the interpolation's coefficients at $\\tau$.
 
 Each product is applied inside a `jax.lax.cond`, which XLA's CPU backend compiles
-apart from the replay: in `benchmarks/gradients.py`'s stepwise adjoint that took
-33 against 80 us per step of the default scenario. The times of the steps are held
+apart from the rest of the step: in `benchmarks/gradients.py`'s stepwise adjoint
+that took 33 against 80 us per step of the default scenario. The stage inputs are
+replayed `_BLOCK` steps at a time (`vmap`), and a step's outputs are a range of
+them, whose share is the difference of two running sums over the outputs. (Replayed
+step by step, or taken by a loop over each step's outputs, each cost about 10 ms
+more of some 57 ms on the default scenario.) The times of the steps are held
 fixed (as in any adjoint over the steps taken): the derivative leaves out how the
 step-size controller's choices move with the parameters, a difference of the order
 of the solver's tolerance (the tests compare it with diffrax's adjoint, which
@@ -38,6 +42,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+# Steps whose stage inputs the backward pass replays at once (`vmap`).
+_BLOCK = 64
 
 
 class StepwiseAdjoint(eqx.Module):
@@ -59,8 +66,11 @@ class StepwiseAdjoint(eqx.Module):
       use `diffrax.ForwardMode()`.
     - Explicit Runge-Kutta solvers whose dense output is built from the stages
       (Tsit5, the default, Dopri5, Bosh3, Heun, Ralston, Midpoint).
-    - Memory: the start of every accepted step, up to `max_steps` of them
-      ($(\\text{max\\_steps} + 1) \\times (12(m + 1) + 2)$ floats).
+    - Memory: room for the start of `max_steps` steps,
+      $(\\text{max\\_steps} + 1) \\times (12(m + 1) + 2)$ floats, 30 MB for
+      three bodies at the default `max_steps=100_000`; filling it costs time too
+      (on the default scenario 57 against 50 ms with `max_steps=4096`). Set
+      `max_steps` to a few times the steps the runs take.
     """
 
 
@@ -175,6 +185,16 @@ def stepwise_solve(
         )(step_ts[where], step_ts[where + 1], tau)
         weights = jnp.where(reached[:, None] & (n > 0), weights, 0.0)
 
+        # each output's share of the cotangents of (x_n, x_{n+1}, K_1 ... K_s) of
+        # its step, as running sums over the outputs: a step's outputs are a
+        # range of them, whose sum is the difference of two running sums (its
+        # rounding relative to the running sum, as any sum over the outputs)
+        shares = jnp.where(
+            reached[:, None, None], weights[:, :, None] * tau_bar[:, None, :], 0.0
+        )
+        running = jnp.concatenate(
+            [jnp.zeros((1, *shares.shape[1:]), shares.dtype), jnp.cumsum(shares, 0)]
+        )
         zeros = jax.tree.map(jnp.zeros_like, diff_args)
 
         def stage_inputs(k):
@@ -189,33 +209,17 @@ def stepwise_solve(
                 inputs.append(x + sum(terms))
             return jnp.stack(inputs)
 
-        def step_back(k, inputs, x_bar, p_bar, j):
+        def step_back(k, inputs, x_bar, p_bar):
             """The cotangents before step `k` from those after it."""
             t0, t1 = step_ts[k], step_ts[k + 1]
             h = t1 - t0
 
-            # the outputs in this step (the outputs are in time order)
-            def add_output(inner):
-                j, x0_bar, x_bar, k_bar = inner
-                w, y_bar = weights[j], tau_bar[j]
-                return (
-                    j - 1,
-                    x0_bar + w[0] * y_bar,
-                    x_bar + w[1] * y_bar,
-                    k_bar + w[2:, None] * y_bar,
-                )
-
-            def in_step(inner):
-                return (inner[0] >= 0) & (where[jnp.maximum(inner[0], 0)] == k)
-
-            start = (j, jnp.zeros_like(x_bar), x_bar, jnp.zeros_like(inputs))
-            has_output = in_step(start)
-            j, x0_bar, x_bar, k_out = jax.lax.cond(
-                has_output,
-                lambda start: jax.lax.while_loop(in_step, add_output, start),
-                lambda start: start,
-                start,
-            )
+            # the outputs in this step: `lo <= j < hi` (in time order)
+            lo = jnp.sum(where < k, dtype=jnp.int32)
+            hi = jnp.sum(where <= k, dtype=jnp.int32)
+            share = running[hi] - running[lo]
+            x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
+            has_output = hi > lo
 
             stage_bars: list[Any] = [None] * stages
             for i in reversed(range(stages)):
@@ -243,21 +247,30 @@ def stepwise_solve(
                 stage_bars[i] = stage_bar
                 p_bar = jax.tree.map(jnp.add, p_bar, d_bar)
             x_bar = x_bar + sum(stage_bars) + x0_bar
-            return x_bar, p_bar, j
+            return x_bar, p_bar
+
+        def replay(top):
+            """The stage inputs of steps `top - _BLOCK + 1 ... top`, at once."""
+            ks = jnp.maximum(top - _BLOCK + 1 + jnp.arange(_BLOCK, dtype=jnp.int32), 0)
+            return jax.vmap(stage_inputs)(ks)
 
         def body(carry):
-            k, x_bar, p_bar, j = carry
-            x_bar, p_bar, j = step_back(k, stage_inputs(k), x_bar, p_bar, j)
-            return k - 1, x_bar, p_bar, j
+            k, x_bar, p_bar, block, top = carry
+            stale = k < top - _BLOCK + 1
+            top = jnp.where(stale, k, top)
+            block = jax.lax.cond(stale, replay, lambda top: block, top)
+            inputs = block[k - (top - _BLOCK + 1)]
+            x_bar, p_bar = step_back(k, inputs, x_bar, p_bar)
+            return k - 1, x_bar, p_bar, block, top
 
-        _, x_bar, p_bar, j = jax.lax.while_loop(
+        _, x_bar, p_bar, _, _ = jax.lax.while_loop(
             lambda carry: carry[0] >= 0,
             body,
-            (n - 1, ys_bar[-1], zeros, jnp.asarray(tau.shape[0] - 1, dtype=jnp.int32)),
+            (n - 1, ys_bar[-1], zeros, replay(n - 1), n - 1),
         )
-        # outputs left over (a run without a step): at the start, x_0 itself
-        left = reached & (jnp.arange(tau.shape[0], dtype=jnp.int32) <= j)
-        x_bar = x_bar + jnp.sum(jnp.where(left[:, None], tau_bar, 0.0), axis=0)
+        # a run without a step: its outputs are x_0 itself
+        stepless = jnp.sum(jnp.where(reached[:, None], tau_bar, 0.0), axis=0)
+        x_bar = x_bar + jnp.where(n == 0, stepless, 0.0)
 
         none = jax.tree.map(lambda _: None, arrays)
         return eqx.tree_at(
