@@ -3,14 +3,17 @@
     python benchmarks/gradients.py [--quick] [--json out.json]
 
 Loss: sum of squared deviations of Y at the output times from a target trajectory,
-for `default_scenario()` (3 s, 301 outputs; 0.1 s and the default adjoint only at
-smoke size), as a function of all stiffness and damping parameters
+for `default_scenario()` (3 s, 301 outputs; 0.1 s and the default adjoint and
+`StepwiseAdjoint` only at smoke size), as a function of all stiffness and damping
+parameters
 (2 connections x 12 = 24). Forward:
 `simulate` + loss, jitted. Gradients: `jax.grad` with
 `RecursiveCheckpointAdjoint` (the default, `adjoint=None`: checkpoints chosen by
 diffrax from `max_steps`, 446 for 100 000; and `checkpoints=2048`, more than the
 run's steps, so that no step is recomputed twice), `jax.grad` with the library's
-`StepwiseAdjoint` (also at smoke size), `jax.grad` with `BacksolveAdjoint`
+`StepwiseAdjoint` (also at smoke size; and with `max_steps=4096`, a few times the
+run's steps, as its memory scales with `max_steps`), `jax.grad` with
+`BacksolveAdjoint`
 (if diffrax accepts it here), and `jax.jacfwd` with `ForwardMode` (24 tangents).
 Scratch memory: XLA's temporary buffers of each compiled gradient (the difference
 between the two checkpoint counts is what the checkpoints cost). Times are of
@@ -73,7 +76,7 @@ def max_rel_diff(g, base) -> float:
     return float(np.max(np.abs(g - base)) / np.max(np.abs(base)))
 
 
-def make_loss(scenario, adjoint):
+def make_loss(scenario, adjoint, max_steps: int = 100_000):
     s = scenario
     target = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).y
     target = target + 1e-3  # a target the parameters do not reach
@@ -86,6 +89,7 @@ def make_loss(scenario, adjoint):
             s.ts,
             forces=s.forces,
             adjoint=adjoint,
+            max_steps=max_steps,
             throw=False,
         )
         return jnp.sum((traj.y - target) ** 2)
@@ -332,6 +336,12 @@ def run(quick: bool = False) -> dict:
             diffrax.RecursiveCheckpointAdjoint(checkpoints=2048),
         ),
         "reverse_StepwiseAdjoint": (jax.grad, eo.StepwiseAdjoint()),
+        # its memory (and the time to fill it) scales with max_steps: sized to the
+        # run's 1261 steps
+        "reverse_StepwiseAdjoint_max_steps_4096": (
+            jax.grad,
+            (eo.StepwiseAdjoint(), 4096),
+        ),
         "reverse_BacksolveAdjoint": (jax.grad, diffrax.BacksolveAdjoint()),
         "forward_ForwardMode_jacfwd": (jax.jacfwd, diffrax.ForwardMode()),
     }
@@ -342,7 +352,10 @@ def run(quick: bool = False) -> dict:
         }
     rows, grads, calls = [], {}, {"forward": (forward, (params,))}
     for name, (transform, adjoint) in variants.items():
-        fn = jax.jit(transform(make_loss(s, adjoint)))
+        adjoint, max_steps = (
+            adjoint if isinstance(adjoint, tuple) else (adjoint, 100_000)
+        )
+        fn = jax.jit(transform(make_loss(s, adjoint, max_steps)))
         start = time.perf_counter()
         try:
             g = jax.block_until_ready(fn(params))
