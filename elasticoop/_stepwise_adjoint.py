@@ -24,14 +24,17 @@ $\\bar x_{n+1}$ and $\\bar K^{out}$ with the interpolation's coefficients at $\\
 Each product is applied inside a `jax.lax.cond`, which XLA's CPU backend compiles
 apart from the rest of the step: in `benchmarks/gradients.py`'s stepwise adjoint
 that took 33 against 80 us per step of the default scenario. The stage inputs are
-replayed `_BLOCK` steps at a time (`vmap`), and a step's outputs are a range of
-them, whose share is the difference of two running sums over the outputs. (Replayed
-step by step, or taken by a loop over each step's outputs, each cost about 10 ms
-more of some 57 ms on the default scenario.) The times of the steps are held
-fixed (as in any adjoint over the steps taken): the derivative leaves out how the
-step-size controller's choices move with the parameters, a difference of the order
-of the solver's tolerance (the tests compare it with diffrax's adjoint, which
-includes it, and with finite differences).
+replayed `_BLOCK` steps at a time (`vmap`), and the outputs' shares are summed per
+step beforehand (a scan over the outputs that starts again at each step's first).
+(Replayed step by step, or taken by a loop over each step's outputs, each cost
+about 10 ms more of some 57 ms on the default scenario.)
+
+The times of the steps are held fixed, as diffrax's own adjoint holds them (its
+step-size controller stops gradients): the two give the same gradients to rounding
+(the tests compare them, and with central differences). A step that ends at a jump
+time is replayed to just after it, where diffrax's step ended just before: the
+same stage values for forces continuous in time (`SampledForce` interpolates
+linearly), the only forces with jump times.
 """
 
 from collections.abc import Callable
@@ -59,9 +62,9 @@ class StepwiseAdjoint(eqx.Module):
 
     - Gradients with respect to the initial state and every floating-point array
       of the model and the forces. Not with respect to the output times `ts`,
-      `dt0` or the tolerances (a `ValueError` says so), and the step times are
-      held fixed: the gradient differs from `diffrax.RecursiveCheckpointAdjoint`'s
-      by the controller's share, of the order of the tolerance.
+      `dt0`, the tolerances or a force's jump times (a `ValueError` says so). The
+      step times are held fixed, as in `diffrax.RecursiveCheckpointAdjoint`: the
+      two give the same gradients to rounding.
     - Reverse mode only (`jax.grad`, `jax.vjp`); for forward mode (`jax.jacfwd`)
       use `diffrax.ForwardMode()`.
     - Explicit Runge-Kutta solvers whose dense output is built from the stages
@@ -171,14 +174,17 @@ def stepwise_solve(
         n = jnp.sum(jnp.isfinite(step_ts), dtype=jnp.int32) - 1  # accepted steps
         last = jnp.maximum(n - 1, 0)
 
-        # the outputs (all saves but the last, the end state): their steps and
-        # interpolation weights (none for outputs the run did not reach)
-        tau, tau_bar = out_ts[:-1], ys_bar[:-1]
-        reached = jnp.isfinite(tau)
-        tau = jnp.where(reached, tau, step_ts[0])
+        # The saves: the outputs the run reached, then its end state (diffrax fills
+        # the slots in order; the rest, inf, have no cotangent). The outputs'
+        # steps and interpolation weights:
+        end = jnp.maximum(jnp.sum(jnp.isfinite(out_ts), dtype=jnp.int32) - 1, 0)
+        reached = jnp.arange(out_ts.shape[0], dtype=jnp.int32) < end
+        tau = jnp.where(reached, out_ts, step_ts[0])
+        tau_bar = jnp.where(reached[:, None], ys_bar, 0.0)
         where = jnp.searchsorted(step_ts, tau, side="left").astype(jnp.int32)
         where = jnp.clip(where - 1, 0, last)
-        # (outputs not reached come last: taken, with no weight, in the last step)
+        # (the end state and the slots after it come last: in the last step, with
+        # no weight)
         where = jnp.where(reached, where, last)
         weights = jax.vmap(
             lambda t0, t1, t: _interpolation_weights(solver, t0, t1, t, stages)
@@ -186,15 +192,19 @@ def stepwise_solve(
         weights = jnp.where(reached[:, None] & (n > 0), weights, 0.0)
 
         # each output's share of the cotangents of (x_n, x_{n+1}, K_1 ... K_s) of
-        # its step, as running sums over the outputs: a step's outputs are a
-        # range of them, whose sum is the difference of two running sums (its
-        # rounding relative to the running sum, as any sum over the outputs)
-        shares = jnp.where(
-            reached[:, None, None], weights[:, :, None] * tau_bar[:, None, :], 0.0
-        )
-        running = jnp.concatenate(
-            [jnp.zeros((1, *shares.shape[1:]), shares.dtype), jnp.cumsum(shares, 0)]
-        )
+        # its step, summed over each step's outputs (a range of them: a sum that
+        # starts again at each step's first output)
+        shares = weights[:, :, None] * tau_bar[:, None, :]
+        first = jnp.concatenate([jnp.array([True]), where[1:] != where[:-1]])
+
+        def add(left, right):
+            (first_left, sum_left), (first_right, sum_right) = left, right
+            restart = first_right[:, None, None]
+            return first_left | first_right, jnp.where(
+                restart, sum_right, sum_left + sum_right
+            )
+
+        _, sums = jax.lax.associative_scan(add, (first, shares))
         zeros = jax.tree.map(jnp.zeros_like, diff_args)
 
         def stage_inputs(k):
@@ -217,7 +227,7 @@ def stepwise_solve(
             # the outputs in this step: `lo <= j < hi` (in time order)
             lo = jnp.sum(where < k, dtype=jnp.int32)
             hi = jnp.sum(where <= k, dtype=jnp.int32)
-            share = running[hi] - running[lo]
+            share = jnp.where(hi > lo, sums[jnp.maximum(hi - 1, 0)], 0.0)
             x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
             has_output = hi > lo
 
@@ -266,7 +276,7 @@ def stepwise_solve(
         _, x_bar, p_bar, _, _ = jax.lax.while_loop(
             lambda carry: carry[0] >= 0,
             body,
-            (n - 1, ys_bar[-1], zeros, replay(n - 1), n - 1),
+            (n - 1, ys_bar[end], zeros, replay(n - 1), n - 1),
         )
         # a run without a step: its outputs are x_0 itself
         stepless = jnp.sum(jnp.where(reached[:, None], tau_bar, 0.0), axis=0)
@@ -295,12 +305,19 @@ def _stage_time(t0, t1, h, c_i: float):
 
 def _check_perturbed(perturbed: Any) -> None:
     """A `ValueError` if a gradient is asked with respect to what the adjoint does
-    not differentiate (output times, `dt0`, the controller's tolerances)."""
-    for name in ("ts", "dt0", "controller"):
+    not differentiate (output times, `dt0`, the controller's tolerances and jump
+    times)."""
+    what = {
+        "ts": "output times ts",
+        "dt0": "first step dt0",
+        "controller": "step-size controller (its tolerances, or a SampledForce's "
+        "jump times: differentiate with respect to its values F only)",
+    }
+    for name, description in what.items():
         if any(jax.tree.leaves(getattr(perturbed, name))):
             raise ValueError(
                 f"StepwiseAdjoint differentiates with respect to the initial state "
                 f"and the model's and forces' parameters only, not the solve's "
-                f"{'output times ts' if name == 'ts' else name}; use "
-                f"adjoint=diffrax.RecursiveCheckpointAdjoint() for that"
+                f"{description}; use adjoint=diffrax.RecursiveCheckpointAdjoint() "
+                f"for that"
             )

@@ -97,23 +97,38 @@ def test_other_explicit_solvers(solver):
     assert_close(*gradients(solver=solver))
 
 
-@pytest.mark.slow
-def test_prescribed_motion():
+def swaying_grasps():
     mask = np.zeros((3, 6), dtype=bool)
     mask[1:, :] = True  # the grasps follow a swaying motion
     amplitude = jnp.zeros((3, 6)).at[1:, 2].set(0.01).at[1:, 4].set(0.02)
-    prescribed = eo.PrescribedMotion(mask, Wave(Y0, amplitude))
-    assert_close(*gradients(prescribed=prescribed))
+    return eo.PrescribedMotion(mask, Wave(Y0, amplitude))
 
 
 @pytest.mark.slow
-def test_run_stopped_before_the_end():
-    """A run that ends at its step limit: the outputs it did not reach have no
-    cotangent, the others enter through the steps taken."""
-    ours, theirs = gradients(max_steps=40)
+def test_prescribed_motion():
+    assert_close(*gradients(prescribed=swaying_grasps()))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("prescribed", [False, True], ids=["free", "prescribed"])
+def test_run_stopped_before_the_end(prescribed):
+    """A run that ends at its step limit: its end state is saved after the
+    outputs it reached (the slots after it, inf, have no cotangent; with
+    prescribed motion `simulate` evaluates the motion there too), the outputs
+    enter through the steps taken."""
+    motion = swaying_grasps() if prescribed else None
+    ours, theirs = gradients(max_steps=40, prescribed=motion)
     assert_close(ours, theirs)
     traj = eo.simulate(
-        MODEL, Y0, YDOT0, TS, forces=LIFT, max_steps=40, throw=False, **TOL
+        MODEL,
+        Y0,
+        YDOT0,
+        TS,
+        forces=LIFT,
+        max_steps=40,
+        throw=False,
+        prescribed=motion,
+        **TOL,
     )
     assert traj.status == eo.Status.MAX_STEPS_REACHED
     reached = np.all(np.isfinite(np.asarray(traj.y)), axis=(1, 2))
