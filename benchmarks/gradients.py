@@ -156,6 +156,33 @@ def per_evaluation(scenario, traj, n_evals: int) -> dict:
     return {"alone": (alone, args), "with_vjp": (with_vjp, args)}
 
 
+def start(scenario):
+    """The scenario's initial state as `simulate` integrates it."""
+    s = scenario
+    return _simulate._pack(s.y_init, s.ydot_init, jnp.zeros(()), jnp.zeros(()))
+
+
+def bare_solve(scenario, field, params, saveat, max_steps, **kwargs):
+    """`diffrax.diffeqsolve` of `field` over the scenario's outputs' span with
+    simulate's solver and step-size controller (no stop conditions)."""
+    s = scenario
+    return diffrax.diffeqsolve(
+        diffrax.ODETerm(field),
+        diffrax.Tsit5(),
+        s.ts[0],
+        s.ts[-1],
+        None,
+        start(s),
+        params,
+        saveat=saveat,
+        stepsize_controller=diffrax.PIDController(  # simulate's
+            rtol=1e-8, atol=1e-10, norm=rms_norm
+        ),
+        max_steps=max_steps,
+        **kwargs,
+    )
+
+
 def stepwise_backward(scenario, field=None):
     """The backward pass of the plainest discrete adjoint, as `(fn, args)` and the
     run's accepted steps. Given those steps (times and states, from
@@ -191,20 +218,9 @@ def stepwise_backward(scenario, field=None):
                 ks.append(stage(t0 + c[i] * h, x, params))
         return x  # the last row of a is b: the last stage's input is the result
 
-    x0 = _simulate._pack(s.y_init, s.ydot_init, jnp.zeros(()), jnp.zeros(()))
-    sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(field),
-        diffrax.Tsit5(),
-        s.ts[0],
-        s.ts[-1],
-        None,
-        x0,
-        parameters(s.model),
-        saveat=diffrax.SaveAt(t0=True, steps=True),
-        stepsize_controller=diffrax.PIDController(  # simulate's
-            rtol=1e-8, atol=1e-10, norm=rms_norm
-        ),
-        max_steps=4096,
+    x0 = start(s)
+    sol = bare_solve(
+        s, field, parameters(s.model), diffrax.SaveAt(t0=True, steps=True), 4096
     )
     n = int(sol.stats["num_accepted_steps"])
     ts, xs = sol.ts, sol.ys
@@ -272,23 +288,15 @@ def bare_solve_losses(scenario, field):
     s = scenario
     target = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).y
     target = target + 1e-3
-    x0 = _simulate._pack(s.y_init, s.ydot_init, jnp.zeros(()), jnp.zeros(()))
 
     def loss(params):
-        sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(field),
-            diffrax.Tsit5(),
-            s.ts[0],
-            s.ts[-1],
-            None,
-            x0,
+        sol = bare_solve(
+            s,
+            field,
             params,
-            saveat=diffrax.SaveAt(ts=s.ts),
-            stepsize_controller=diffrax.PIDController(  # simulate's
-                rtol=1e-8, atol=1e-10, norm=rms_norm
-            ),
+            diffrax.SaveAt(ts=s.ts),
+            100_000,
             adjoint=diffrax.RecursiveCheckpointAdjoint(checkpoints=2048),
-            max_steps=100_000,
         )
         y = _simulate._unpack(sol.ys)[0]
         return jnp.sum((y - target) ** 2)
