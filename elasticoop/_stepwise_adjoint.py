@@ -68,7 +68,7 @@ class StepwiseAdjoint(eqx.Module):
     - Reverse mode only (`jax.grad`, `jax.vjp`); for forward mode (`jax.jacfwd`)
       use `diffrax.ForwardMode()`.
     - Explicit Runge-Kutta solvers whose dense output is built from the stages
-      (Tsit5, the default, Dopri5, Bosh3, Heun, Ralston, Midpoint).
+      (Tsit5, the default, Dopri5, Dopri8, Bosh3, Heun, Ralston, Midpoint).
     - Memory: room for the start of `max_steps` steps,
       $(\\text{max\\_steps} + 1) \\times (12(m + 1) + 2)$ floats, 30 MB for
       three bodies at the default `max_steps=100_000`; filling it costs time too
@@ -90,8 +90,8 @@ def check_solver(solver: Any) -> None:
     if not supported:
         raise ValueError(
             f"StepwiseAdjoint needs an explicit Runge-Kutta solver whose dense output "
-            f"is built from its stages (Tsit5, Dopri5, Bosh3, Heun, Ralston, "
-            f"Midpoint), got {type(solver).__name__}; use "
+            f"is built from its stages (Tsit5, Dopri5, Dopri8, Bosh3, Heun, "
+            f"Ralston, Midpoint), got {type(solver).__name__}; use "
             f"adjoint=diffrax.RecursiveCheckpointAdjoint() with this solver"
         )
 
@@ -227,9 +227,9 @@ def stepwise_solve(
             # the outputs in this step: `lo <= j < hi` (in time order)
             lo = jnp.sum(where < k, dtype=jnp.int32)
             hi = jnp.sum(where <= k, dtype=jnp.int32)
-            share = jnp.where(hi > lo, sums[jnp.maximum(hi - 1, 0)], 0.0)
-            x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
             has_output = hi > lo
+            share = jnp.where(has_output, sums[jnp.maximum(hi - 1, 0)], 0.0)
+            x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
 
             stage_bars: list[Any] = [None] * stages
             for i in reversed(range(stages)):
@@ -279,8 +279,7 @@ def stepwise_solve(
             (n - 1, ys_bar[end], zeros, replay(n - 1), n - 1),
         )
         # a run without a step: its outputs are x_0 itself
-        stepless = jnp.sum(jnp.where(reached[:, None], tau_bar, 0.0), axis=0)
-        x_bar = x_bar + jnp.where(n == 0, stepless, 0.0)
+        x_bar = x_bar + jnp.where(n == 0, jnp.sum(tau_bar, axis=0), 0.0)
 
         none = jax.tree.map(lambda _: None, arrays)
         return eqx.tree_at(

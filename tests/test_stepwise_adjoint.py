@@ -18,8 +18,9 @@ YDOT0 = jnp.zeros_like(Y0).at[0, :3].set(jnp.array([0.1, 0.0, 0.2]))
 LIFT = jnp.zeros((3, 6)).at[1:, 2].set(12.0)
 TS = jnp.linspace(0.0, 0.2, 21)
 TOL = dict(rtol=1e-10, atol=1e-12)
-# The two adjoints take the same steps and the same products, in another order.
-RTOL = 1e-10
+# The two adjoints take the same steps and the same products, in another order:
+# they differ by rounding (at most 5e-14 measured, Bosh3's many steps).
+RTOL = 1e-12
 
 
 def loss(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
