@@ -40,7 +40,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from ._custom_types import Scalar
-from ._stepwise_adjoint import StepwiseAdjoint, check_solver, stepwise_solve
+from ._stepwise_adjoint import (
+    AbstractStepRecorder,
+    StepwiseAdjoint,
+    check_solver,
+    stepwise_solve,
+)
 
 
 def result_code(result: Any) -> int:
@@ -101,6 +106,11 @@ def integrate(
     docstring)."""
     if isinstance(adjoint, StepwiseAdjoint):
         check_solver(solver)
+        if not isinstance(controller, AbstractStepRecorder):
+            raise TypeError(
+                f"StepwiseAdjoint needs a controller that records the accepted steps "
+                f"(an AbstractStepRecorder), got {type(controller).__name__}"
+            )
     setup = _Setup(y0, args, ts, dt0, controller)
     arrays, static = eqx.partition(setup, eqx.is_array)
 
@@ -109,11 +119,13 @@ def integrate(
         event = diffrax.Event([_of_diffrax(c) for c in conditions], direction=False)
 
     def run(arrays, keep_steps: bool = False):
-        """The solve, and with `keep_steps` the accepted steps' starts and the
-        end (for `StepwiseAdjoint`)."""
+        """The solve, and with `keep_steps` its `AcceptedSteps` (for
+        `StepwiseAdjoint`, kept by the controller), else `None`."""
         setup = eqx.combine(arrays, static)
-        outputs = diffrax.SubSaveAt(ts=setup.ts, t1=True)
-        subs = (outputs, diffrax.SubSaveAt(t0=True, steps=True))
+        controller = setup.controller
+        if keep_steps:
+            assert isinstance(controller, AbstractStepRecorder)  # (checked above)
+            controller = controller.recording(max_steps)
         sol = diffrax.diffeqsolve(
             diffrax.ODETerm(vector_field),
             solver,
@@ -122,10 +134,8 @@ def integrate(
             dt0=setup.dt0,
             y0=setup.y0,
             args=setup.args,
-            saveat=diffrax.SaveAt(
-                subs=subs if keep_steps else outputs, controller_state=True
-            ),
-            stepsize_controller=setup.controller,
+            saveat=diffrax.SaveAt(ts=setup.ts, t1=True, controller_state=True),
+            stepsize_controller=controller,
             adjoint=diffrax.RecursiveCheckpointAdjoint()
             if isinstance(adjoint, StepwiseAdjoint)
             else adjoint,
@@ -134,18 +144,19 @@ def integrate(
             throw=False,
             progress_meter=progress_meter,
         )
-        ts, ys = (sol.ts[0], sol.ys[0]) if keep_steps else (sol.ts, sol.ys)
+        state, steps = sol.controller_state, None
+        if keep_steps:
+            assert isinstance(controller, AbstractStepRecorder)
+            steps, state = controller.accepted_steps(state)
         outcome = Outcome(
-            ts,
-            ys,
+            sol.ts,
+            sol.ys,
             sol.result._value,
             () if event is None else tuple(sol.event_mask),
-            sol.controller_state,
+            state,
             jnp.asarray(sol.stats["num_steps"], jnp.int32),
         )
-        if keep_steps:
-            return outcome, sol.ts[1], sol.ys[1]
-        return outcome, None, None
+        return outcome, steps
 
     def diffrax_solve(arrays):
         if isinstance(adjoint, StepwiseAdjoint):

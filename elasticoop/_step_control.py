@@ -1,5 +1,6 @@
 """The step-size controller of `simulate`: diffrax's, plus a clean stop where no step
-can succeed, and a record of the last step for locating events."""
+can succeed, and a record of the last accepted step for locating events (or of all
+of them, for `StepwiseAdjoint`)."""
 
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -12,6 +13,7 @@ import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
 from ._custom_types import Scalar
+from ._stepwise_adjoint import AbstractStepRecorder, AcceptedSteps
 
 # A step shorter than this many units in the last place of the times that gives NaN
 # or inf ends the run: the vector field is not finite right after the current time.
@@ -27,12 +29,26 @@ class StepRecord(NamedTuple):
     nonfinite: Bool[Array, ""]
     # the time that step tried to reach
     t_tried: Scalar
-    # the start of the last accepted step, where `locate_event` interpolates from
-    t_start: Scalar
-    y_start: PyTree[Array]
+    # the accepted steps: all of them (up to the controller's `room`), or with
+    # `room=1` the last one (its start, where `locate_event` interpolates from)
+    steps: AcceptedSteps
+
+    @property
+    def t_start(self) -> Scalar:
+        """The start time of the last accepted step (the start of the run if none)."""
+        return self.steps.t_start[self._last()]
+
+    @property
+    def y_start(self) -> PyTree[Array]:
+        """The state at `t_start`."""
+        return jax.tree.map(lambda y: y[self._last()], self.steps.y_start)
+
+    def _last(self) -> Array:
+        room = self.steps.t_start.shape[0]
+        return jnp.clip(self.steps.n_accepted - 1, 0, room - 1)
 
 
-class StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
+class StopFailedSteps(AbstractStepRecorder):
     """An adaptive step-size controller that ends the solve at once (diffrax's
     `RESULTS.dt_min_reached`) where no step can succeed. That is when a rejected
     step gave NaN or inf although it was shorter than `min_step` (or its length was
@@ -44,8 +60,9 @@ class StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
 
     Its state is a `StepRecord`: `controller`'s state, whether the last step tried
     held NaN or inf, which tells a non-finite failure from a collapse of the step
-    size on finite values, the time that step tried to reach, and the start of the
-    last accepted step."""
+    size on finite values, the time that step tried to reach, and the accepted
+    steps (`AcceptedSteps`): the last one, or with `recording(room)` the first
+    `room` (what `StepwiseAdjoint` replays)."""
 
     controller: diffrax.AbstractAdaptiveStepSizeController
     min_step: Scalar
@@ -54,12 +71,15 @@ class StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
     rtol: int | float | Array | np.ndarray
     atol: int | float | Array | np.ndarray
     norm: Callable = eqx.field(static=True)
+    # how many accepted steps the state keeps (1: the last one)
+    room: int = eqx.field(static=True)
 
     def __init__(
         self,
         controller: diffrax.AbstractAdaptiveStepSizeController,
         min_step: Scalar,
         halt: Bool[Array, ""],
+        room: int = 1,
     ):
         self.controller = controller
         self.min_step = min_step
@@ -67,6 +87,19 @@ class StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
         self.rtol = controller.rtol
         self.atol = controller.atol
         self.norm = controller.norm
+        self.room = room
+
+    def recording(self, room: int) -> "StopFailedSteps":
+        return StopFailedSteps(self.controller, self.min_step, self.halt, room)
+
+    def accepted_steps(self, state: StepRecord) -> tuple[AcceptedSteps, StepRecord]:
+        last = state._last()
+        steps = state.steps
+        kept = AcceptedSteps(
+            steps.n_accepted,
+            *jax.tree.map(lambda x: x[last][None], steps[1:]),
+        )
+        return steps, state._replace(steps=kept)
 
     def wrap(self, direction):
         controller = self.controller.wrap(direction)
@@ -77,7 +110,19 @@ class StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
             terms, t0, t1, y0, dt0, args, func, error_order
         )
         t0 = jnp.asarray(t0)
-        return t_next, StepRecord(state, jnp.array(False), t0, t0, y0)
+
+        def slots(x, fill):
+            x = jnp.asarray(x)
+            return jnp.full((self.room, *x.shape), fill, x.dtype).at[0].set(x)
+
+        times = slots(t0, jnp.inf)
+        steps = AcceptedSteps(
+            jnp.array(0, jnp.int32),
+            times,
+            times,
+            jax.tree.map(lambda y: slots(y, 0), y0),
+        )
+        return t_next, StepRecord(state, jnp.array(False), t0, steps)
 
     def adapt_step_size(
         self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
@@ -97,10 +142,18 @@ class StopFailedSteps(diffrax.AbstractAdaptiveStepSizeController):
         rejected = jnp.logical_not(keep)
         stop = self.halt | rejected & (short & ~finite | stalled)
         result = diffrax.RESULTS.where(stop, diffrax.RESULTS.dt_min_reached, result)
-        t_start, y_start = jax.tree.map(
-            lambda new, old: jnp.where(keep, new, old),
-            (t0, y0),
-            (controller_state.t_start, controller_state.y_start),
+        # an accepted step goes into its slot (with `room=1` always the first)
+        steps = controller_state.steps
+        slot = jnp.minimum(steps.n_accepted, self.room - 1)
+
+        def put(buffer, value):
+            return buffer.at[slot].set(jnp.where(keep, value, buffer[slot]))
+
+        steps = AcceptedSteps(
+            steps.n_accepted + keep.astype(steps.n_accepted.dtype),
+            put(steps.t_start, t0),
+            put(steps.t_end, t1),
+            jax.tree.map(put, steps.y_start, y0),
         )
-        record = StepRecord(state, ~finite, t1, t_start, y_start)
+        record = StepRecord(state, ~finite, t1, steps)
         return keep, next_t0, next_t1, made_jump, record, result

@@ -3,8 +3,10 @@
 `StepwiseAdjoint` is the discrete adjoint of the solution the solver computed,
 written as a rule of `integrate` (`equinox.filter_custom_vjp`) instead of diffrax's
 differentiation of its whole loop. The forward run also keeps the start
-$(t_n, x_n)$ of every accepted step; the backward pass goes from the last step to
-the first and, for step $n$ with $h = t_{n+1} - t_n$, replays its stages from $x_n$
+$(t_n, x_n)$ and the end time of every accepted step (`AcceptedSteps`, recorded by
+the step-size controller, an `AbstractStepRecorder`); the backward pass goes from
+the last step to the first and, for step $n$ with $h$ the step's length (usually
+$t_{n+1} - t_n$), replays its stages from $x_n$
 (stage inputs $X_i = x_n + \\sum_{j<i} a_{ij} K_j$, increments
 $K_i = h\\,f(t_n + c_i h, X_i)$, so $x_{n+1} = x_n + \\sum_i b_i K_i$), then applies
 the recurrences of the Runge-Kutta adjoint,
@@ -31,23 +33,53 @@ about 10 ms more of some 57 ms on the default scenario.)
 
 The times of the steps are held fixed, as diffrax's own adjoint holds them (its
 step-size controller stops gradients): the two give the same gradients to rounding
-(the tests compare them, and with central differences). A step that ends at a jump
-time is replayed to just after it, where diffrax's step ended just before: the
-same stage values for forces continuous in time (`SampledForce` interpolates
-linearly), the only forces with jump times.
+(the tests compare them, and with central differences). Each step is replayed
+over the times it took: one that ends at a jump time ends there, and the next
+starts just after it.
 """
 
+import abc
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float, Int, PyTree
 
 # Steps whose stage inputs the backward pass replays at once (`vmap`).
 _BLOCK = 64
+
+
+class AcceptedSteps(NamedTuple):
+    """The accepted steps of a solve, as `StepwiseAdjoint` replays them: how many,
+    and for each step $n$ (rows past the last are padding) its start time $t_n$,
+    end time and start state $x_n$ (a leading axis on each leaf)."""
+
+    n_accepted: Int[Array, ""]
+    t_start: Float[Array, " room"]
+    t_end: Float[Array, " room"]
+    y_start: PyTree[Array]
+
+
+class AbstractStepRecorder(diffrax.AbstractAdaptiveStepSizeController):
+    """A step-size controller that can keep the accepted steps in its state, what
+    `StepwiseAdjoint` needs of `integrate`'s controller.
+
+    (Kept by the controller rather than by diffrax's `SaveAt(steps=True)`: on the
+    default scenario a forward run that keeps the steps took 18-20 ms that way,
+    about 14 ms this way, against 13 ms for one that keeps nothing.)"""
+
+    @abc.abstractmethod
+    def recording(self, room: int) -> "AbstractStepRecorder":
+        """This controller, keeping the first `room` accepted steps."""
+
+    @abc.abstractmethod
+    def accepted_steps(self, state: Any) -> tuple[AcceptedSteps, Any]:
+        """The steps a `recording` controller kept, from its final `state`, and
+        that state as the controller would have ended it without recording."""
 
 
 class StepwiseAdjoint(eqx.Module):
@@ -69,11 +101,11 @@ class StepwiseAdjoint(eqx.Module):
       use `diffrax.ForwardMode()`.
     - Explicit Runge-Kutta solvers whose dense output is built from the stages
       (Tsit5, the default, Dopri5, Dopri8, Bosh3, Heun, Ralston, Midpoint).
-    - Memory: room for the start of `max_steps` steps,
-      $(\\text{max\\_steps} + 1) \\times (12(m + 1) + 2)$ floats, 30 MB for
-      three bodies at the default `max_steps=100_000`; filling it costs time too
-      (on the default scenario 57 against 50 ms with `max_steps=4096`). Set
-      `max_steps` to a few times the steps the runs take.
+    - Memory: room for `max_steps` steps,
+      $\\text{max\\_steps} \\times (12(m + 1) + 4)$ floats, 32 MB for three
+      bodies at the default `max_steps=100_000`; filling it costs time too (on
+      the default scenario a few ms, `benchmarks/gradients.py`). Set `max_steps`
+      to a few times the steps the runs take.
     """
 
 
@@ -127,17 +159,16 @@ def _interpolation_weights(solver, t0, t1, tau, stages: int):
 
 
 def stepwise_solve(
-    run: Callable[[Any, bool], tuple[Any, Any, Any]],
+    run: Callable[[Any, bool], tuple[Any, AcceptedSteps | None]],
     vector_field: Callable,
     solver: diffrax.AbstractERK,
     static: Any,
     arrays: Any,
 ) -> Any:
     """`run(arrays, keep_steps)[0]` (an `Outcome`), differentiated in reverse mode
-    as the module's docstring says. `run` returns `(outcome, step_ts, step_ys)`:
-    with `keep_steps`, the times and states at the start of each accepted step and
-    at the end (inf after the last), else `None`s. `arrays` and `static` are
-    `integrate`'s `_Setup` split by `eqx.partition`."""
+    as the module's docstring says. `run` returns `(outcome, steps)`: with
+    `keep_steps`, the run's `AcceptedSteps`, else `None`. `arrays` and `static`
+    are `integrate`'s `_Setup` split by `eqx.partition`."""
     tableau = solver.tableau
     assert isinstance(tableau, diffrax.ButcherTableau)  # (`check_solver`)
     b = np.asarray(tableau.b_sol, dtype=float)
@@ -155,13 +186,14 @@ def stepwise_solve(
 
     @solve.def_fwd
     def solve_fwd(perturbed, arrays):
-        outcome, step_ts, step_ys = run(arrays, True)
-        return outcome, (outcome.ts, step_ts, step_ys)
+        outcome, steps = run(arrays, True)
+        return outcome, (outcome.ts, steps)
 
     @solve.def_bwd
     def solve_bwd(residuals, grad_outcome, perturbed, arrays):
         _check_perturbed(perturbed)
-        out_ts, step_ts, step_ys = residuals
+        out_ts, steps = residuals
+        t_start, t_end, y_start = steps.t_start, steps.t_end, steps.y_start
         # products with respect to the perturbed arrays of `args` only
         diff_args, other_args = eqx.partition(arrays.args, perturbed.args)
 
@@ -170,25 +202,28 @@ def stepwise_solve(
 
         ys_bar = grad_outcome.ys
         if ys_bar is None:
-            ys_bar = jnp.zeros((out_ts.shape[0], *step_ys.shape[1:]), step_ys.dtype)
-        n = jnp.sum(jnp.isfinite(step_ts), dtype=jnp.int32) - 1  # accepted steps
+            ys_bar = jnp.zeros((out_ts.shape[0], *y_start.shape[1:]), y_start.dtype)
+        n = steps.n_accepted  # accepted steps
         last = jnp.maximum(n - 1, 0)
+        # (padding past the last step: no output searches into it)
+        rows = jnp.arange(t_start.shape[0], dtype=jnp.int32)
+        t_start = jnp.where(rows < n, t_start, jnp.inf)
 
         # The saves: the outputs the run reached, then its end state (diffrax fills
         # the slots in order; the rest, inf, have no cotangent). The outputs'
         # steps and interpolation weights:
         end = jnp.maximum(jnp.sum(jnp.isfinite(out_ts), dtype=jnp.int32) - 1, 0)
         reached = jnp.arange(out_ts.shape[0], dtype=jnp.int32) < end
-        tau = jnp.where(reached, out_ts, step_ts[0])
+        tau = jnp.where(reached, out_ts, t_start[0])
         tau_bar = jnp.where(reached[:, None], ys_bar, 0.0)
-        where = jnp.searchsorted(step_ts, tau, side="left").astype(jnp.int32)
+        where = jnp.searchsorted(t_start, tau, side="left").astype(jnp.int32)
         where = jnp.clip(where - 1, 0, last)
         # (the end state and the slots after it come last: in the last step, with
         # no weight)
         where = jnp.where(reached, where, last)
         weights = jax.vmap(
             lambda t0, t1, t: _interpolation_weights(solver, t0, t1, t, stages)
-        )(step_ts[where], step_ts[where + 1], tau)
+        )(t_start[where], t_end[where], tau)
         weights = jnp.where(reached[:, None] & (n > 0), weights, 0.0)
 
         # each output's share of the cotangents of (x_n, x_{n+1}, K_1 ... K_s) of
@@ -209,8 +244,8 @@ def stepwise_solve(
 
         def stage_inputs(k):
             """The inputs $X_i$ of step `k`'s stages, replayed from its start."""
-            t0, t1 = step_ts[k], step_ts[k + 1]
-            h, x = t1 - t0, step_ys[k]
+            t0, t1 = t_start[k], t_end[k]
+            h, x = t1 - t0, y_start[k]
             inputs, increments = [x], []
             for i in range(1, stages):
                 t = _stage_time(t0, t1, h, c[i - 1])
@@ -221,7 +256,7 @@ def stepwise_solve(
 
         def step_back(k, inputs, x_bar, p_bar):
             """The cotangents before step `k` from those after it."""
-            t0, t1 = step_ts[k], step_ts[k + 1]
+            t0, t1 = t_start[k], t_end[k]
             h = t1 - t0
 
             # the outputs in this step: `lo <= j < hi` (in time order)

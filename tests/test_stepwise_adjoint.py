@@ -98,6 +98,26 @@ def test_other_explicit_solvers(solver):
     assert_close(*gradients(solver=solver))
 
 
+@pytest.mark.slow
+def test_sampled_force_with_a_jump_time():
+    """A `SampledForce` whose slope changes at 0.1 s: the controller ends a step
+    there (a jump time), and the steps are replayed with the times they took. Its
+    samples are differentiated (its times and jump times are not)."""
+    times = jnp.linspace(0.0, 0.2, 5)
+    ramp = 1.0 + jnp.minimum(times, 0.1) / 0.1
+    samples = ramp[:, None, None] * LIFT
+    force = eo.SampledForce(times, samples, jump_ts=[0.1])
+
+    def of_samples(samples, adjoint):
+        sampled = eqx.tree_at(lambda f: f.F, force, samples)
+        return loss((*PARAMS[:4], sampled), adjoint)
+
+    ours = jax.grad(lambda F: of_samples(F, eo.StepwiseAdjoint()))(samples)
+    theirs = jax.grad(lambda F: of_samples(F, None))(samples)
+    gap = float(jnp.max(jnp.abs(ours - theirs)) / jnp.max(jnp.abs(theirs)))
+    assert gap < RTOL, gap
+
+
 def swaying_grasps():
     mask = np.zeros((3, 6), dtype=bool)
     mask[1:, :] = True  # the grasps follow a swaying motion
