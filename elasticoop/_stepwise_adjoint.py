@@ -69,8 +69,9 @@ class AbstractStepRecorder(diffrax.AbstractAdaptiveStepSizeController):
     `StepwiseAdjoint` needs of `integrate`'s controller.
 
     (Kept by the controller rather than by diffrax's `SaveAt(steps=True)`: on the
-    default scenario a forward run that keeps the steps took 18-20 ms that way,
-    about 14 ms this way, against 13 ms for one that keeps nothing.)"""
+    default scenario the forward half of a gradient took 18-20 ms that way, 13-15
+    ms this way, as much as a forward run that keeps nothing; see the README's
+    Performance section.)"""
 
     @abc.abstractmethod
     def recording(self, room: int) -> "AbstractStepRecorder":
@@ -104,8 +105,9 @@ class StepwiseAdjoint(eqx.Module):
     - Memory: room for `max_steps` steps,
       $\\text{max\\_steps} \\times (12(m + 1) + 4)$ floats, 32 MB for three
       bodies at the default `max_steps=100_000`; filling it costs time too (on
-      the default scenario a few ms, `benchmarks/gradients.py`). Set `max_steps`
-      to a few times the steps the runs take.
+      the default scenario the gradient took 57 against 48 ms with
+      `max_steps=4096`, `benchmarks/gradients.py`). Set `max_steps` to a few
+      times the steps the runs take.
     """
 
 
