@@ -124,11 +124,14 @@ def per_evaluation(scenario, traj, n_evals: int) -> dict:
 
     Evaluation k is at output k (modulo their number) of the scenario's own run
     `traj`: its time and state, nudged by the previous result so that no evaluation
-    repeats another, and the product's cotangent is the next output's state. (An
-    earlier version evaluated at one fixed time with a constant cotangent and read
-    1.1 us for the vector field and 3.6 us with its product, well below these: the
-    compiler then does part of the work once, outside the loop, which the solve
-    never can.)"""
+    repeats another, and the product's cotangent is the next output's state.
+
+    `with_vjp_small_arrays`: the same products at one output's time and state,
+    nudged by the previous results (so that nothing can be computed once outside
+    the loop), with a constant cotangent: a loop whose body touches no array of
+    more than a state. XLA's CPU runtime runs such a body's operations one after
+    the other, and a body that reads the outputs' array as a graph, with hand-offs
+    to its thread pool (the README's Performance section)."""
     field = field_of_parameters(scenario)
     times = traj.ts
     states = jax.vmap(_simulate._pack)(traj.y, traj.ydot, traj.work, traj.dissipated)
@@ -158,8 +161,27 @@ def per_evaluation(scenario, traj, n_evals: int) -> dict:
             0, n_evals, body, (jnp.zeros_like(states[0]), jnp.zeros(()))
         )
 
+    t_fixed, x_fixed, x_bar_fixed = times[n // 2], states[n // 2], states[n // 2 + 1]
+
+    @jax.jit
+    def with_vjp_small_arrays(params):
+        def body(k, carry):
+            x_bar, acc = carry
+            t, x = t_fixed + 1e-12 * acc, x_fixed + 1e-12 * x_bar
+            _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
+            x_bar, p_bar = pullback(x_bar_fixed)
+            return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
+
+        return jax.lax.fori_loop(
+            0, n_evals, body, (jnp.zeros_like(x_fixed), jnp.zeros(()))
+        )
+
     args = (parameters(scenario.model),)
-    return {"alone": (alone, args), "with_vjp": (with_vjp, args)}
+    return {
+        "alone": (alone, args),
+        "with_vjp": (with_vjp, args),
+        "with_vjp_small_arrays": (with_vjp_small_arrays, args),
+    }
 
 
 def initial_state(scenario):
@@ -435,6 +457,9 @@ def run(quick: bool = False) -> dict:
         "forward_us_per_step": 1e6 * t_forward / steps,
         "vector_field_us": vf_us,
         "vector_field_with_vjp_us": vjp_us,
+        "vector_field_with_vjp_small_arrays_us": 1e6
+        * times["with_vjp_small_arrays"]
+        / n_evals,
         "vjp_over_vector_field": vjp_us / vf_us,
         "stage_products_us_per_step": 6 * vjp_us,
         "products_floor_over_forward": (t_forward + products) / t_forward,

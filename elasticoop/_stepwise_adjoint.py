@@ -23,9 +23,14 @@ solver's dense output: an output at $\\tau$ in step $n$ is linear in
 $(x_n, x_{n+1}, K_1, \\dots, K_s)$, and its cotangent adds to $\\bar x_n^{out}$,
 $\\bar x_{n+1}$ and $\\bar K^{out}$ with the interpolation's coefficients at $\\tau$.
 
-Each product is applied inside a `jax.lax.cond`, which XLA's CPU backend compiles
-apart from the rest of the step: in `benchmarks/gradients.py`'s stepwise adjoint
-that took 33 against 80 us per step of the default scenario. The stage inputs are
+Each step's products are taken inside a `jax.lax.cond` whose operands are small
+arrays (a state or less each). XLA's CPU runtime runs the operations of such a
+branch one after the other; the loop's body, which touches large arrays, it runs
+as a graph, handing work to its thread pool and back, which made a product cost
+about twice as much applied in the body itself (in `benchmarks/gradients.py`'s
+stepwise adjoint 80 against 33 us per step of the default scenario; one branch
+per step rather than one per product: a backward pass of 31-32 against 32.5-33
+ms). The stage inputs are
 replayed `_BLOCK` steps at a time (`vmap`), and the outputs' shares are summed per
 step beforehand (a scan over the outputs that starts again at each step's first).
 (Replayed step by step, or taken by a loop over each step's outputs, each cost
@@ -256,18 +261,11 @@ def stepwise_solve(
                 inputs.append(x + sum(terms))
             return jnp.stack(inputs)
 
-        def step_back(k, inputs, x_bar, p_bar):
-            """The cotangents before step `k` from those after it."""
-            t0, t1 = t_start[k], t_end[k]
+        def step_back(t0, t1, has_output, share, inputs, x_bar, p_bar):
+            """The cotangents before a step from those after it, given the step's
+            times, the share of its outputs' cotangents and its stage inputs."""
             h = t1 - t0
-
-            # the outputs in this step: `lo <= j < hi` (in time order)
-            lo = jnp.sum(where < k, dtype=jnp.int32)
-            hi = jnp.sum(where <= k, dtype=jnp.int32)
-            has_output = hi > lo
-            share = jnp.where(has_output, sums[jnp.maximum(hi - 1, 0)], 0.0)
             x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
-
             stage_bars: list[Any] = [None] * stages
             for i in reversed(range(stages)):
                 k_bar = b[i] * x_bar + k_out[i]
@@ -275,22 +273,25 @@ def stepwise_solve(
                     if a[m - 1][i] != 0:
                         k_bar = k_bar + a[m - 1][i] * stage_bars[m]
                 t_i = _stage_time(t0, t1, h, c[i])
+                if used[i]:
+                    _, pullback = jax.vjp(
+                        lambda y, d, t_i=t_i: f(t_i, y, d), inputs[i], diff_args
+                    )
+                    stage_bar, d_bar = pullback(h * k_bar)
+                else:
+                    # a stage that only the dense output uses: only when the step
+                    # has an output
+                    def product(x_i, f_bar, t_i=t_i):
+                        _, pullback = jax.vjp(lambda y, d: f(t_i, y, d), x_i, diff_args)
+                        return pullback(f_bar)
 
-                def product(x_i, f_bar, t_i=t_i):
-                    _, pullback = jax.vjp(lambda y, d: f(t_i, y, d), x_i, diff_args)
-                    return pullback(f_bar)
-
-                # a branch of its own (compiled apart from the replay): taken for
-                # every stage that is used, and for one that only the dense
-                # output uses when the step has an output
-                predicate = (k >= 0) if used[i] else has_output
-                stage_bar, d_bar = jax.lax.cond(
-                    predicate,
-                    product,
-                    lambda x_i, f_bar: (jnp.zeros_like(x_i), zeros),
-                    inputs[i],
-                    h * k_bar,
-                )
+                    stage_bar, d_bar = jax.lax.cond(
+                        has_output,
+                        product,
+                        lambda x_i, f_bar: (jnp.zeros_like(x_i), zeros),
+                        inputs[i],
+                        h * k_bar,
+                    )
                 stage_bars[i] = stage_bar
                 p_bar = jax.tree.map(jnp.add, p_bar, d_bar)
             x_bar = x_bar + sum(stage_bars) + x0_bar
@@ -307,7 +308,25 @@ def stepwise_solve(
             top = jnp.where(stale, k, top)
             block = jax.lax.cond(stale, replay, lambda top: block, top)
             inputs = block[k - (top - _BLOCK + 1)]
-            x_bar, p_bar = step_back(k, inputs, x_bar, p_bar)
+            # the outputs in this step: `lo <= j < hi` (in time order)
+            lo = jnp.sum(where < k, dtype=jnp.int32)
+            hi = jnp.sum(where <= k, dtype=jnp.int32)
+            has_output = hi > lo
+            share = jnp.where(has_output, sums[jnp.maximum(hi - 1, 0)], 0.0)
+            # the step's own work in a branch on small arrays only (the module's
+            # docstring says why)
+            x_bar, p_bar = jax.lax.cond(
+                k >= 0,
+                step_back,
+                lambda t0, t1, has_output, share, inputs, x_bar, p_bar: (x_bar, p_bar),
+                t_start[k],
+                t_end[k],
+                has_output,
+                tuple(share),
+                tuple(inputs),
+                x_bar,
+                p_bar,
+            )
             return k - 1, x_bar, p_bar, block, top
 
         _, x_bar, p_bar, _, _ = jax.lax.while_loop(
