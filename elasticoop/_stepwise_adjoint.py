@@ -314,7 +314,7 @@ def stepwise_solve(
             has_output = hi > lo
             share = jnp.where(has_output, sums[jnp.maximum(hi - 1, 0)], 0.0)
             # the step's own work in a branch on small arrays only (the module's
-            # docstring says why)
+            # docstring says why; its predicate always holds in the loop)
             x_bar, p_bar = jax.lax.cond(
                 k >= 0,
                 step_back,
