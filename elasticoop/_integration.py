@@ -8,21 +8,20 @@ batch in one loop instead of `vmap`-ing diffrax's (`jax.custom_batching.custom_v
 
 Why: `vmap` of diffrax's loop runs the solver's step under `vmap`, which costs
 about three times the step on one batched array (`benchmarks/loop.py`: the Tsit5
-step alone). The batch loop takes diffrax's own step on the batched state, each
-sample with its own time $t_b$ and step $h_b$. The trick is a change of time: in a
-step the batch moves through $s \\in [0, 1]$, sample $b$ being at
-$t = t_b + s h_b$, and `_BatchTerm`'s control is $h_b\\,ds$. A Runge-Kutta step
-from $s = 0$ to $1$ then makes, in every sample, exactly the arithmetic of a step
-from $t_b$ to $t_b + h_b$ (stage times $t_b + c_i h_b$, the last one $t_b + h_b$
-itself, stage increments $k_i = h_b f_i$), and its dense output is the sample's.
-Everything else is diffrax's too, per sample (`vmap`-ed, cheap scalars): the
-step-size controller's `init` and `adapt_step_size`, the solver's interpolation
-for the outputs, and the loop's rules as `diffrax.diffeqsolve` applies them (the
-end clipped within 100 ulps of $t_1$, the first stop condition that changes sign
-from positive to non-positive ends the run at the end of that step, the first
-failure kept, `max_steps`). One sample's steps never depend on the others: the
-first stage of a step is reused from the step before (FSAL) or evaluated for
-that sample alone.
+step alone). The batch loop steps the batched state at once, each sample $b$ from
+its own time $t_b$ over its own step $h_b$, with the solver's Butcher tableau
+(`_batch_step.py`: diffrax's arithmetic, its sums over the stages written
+elementwise; equal to diffrax's step to rounding). Everything else is diffrax's,
+per sample (`vmap`-ed, cheap scalars): the step-size controller's `init` and
+`adapt_step_size`, the solver's interpolation for the outputs, and the loop's rules
+as `diffrax.diffeqsolve` applies them (the end clipped within 100 ulps of $t_1$,
+the first stop condition that changes sign from positive to non-positive ends the
+run at the end of that step, the first failure kept, `max_steps`). One sample's
+steps never depend on the others: the first stage of a step is reused from the
+step before (FSAL) or evaluated for that sample alone. The tests compare batches
+with `vmap` of diffrax's loop: the same steps, statuses and events, and states
+equal to within the solver's tolerance (a step's rounding, carried through the
+controller's choice of the next steps: up to 5e-12 at the default tolerances).
 
 Not differentiable (nor under `jax.jacfwd`): use it for forward runs of batches
 (Monte Carlo), not for gradients. Explicit Runge-Kutta solvers only; with another
@@ -39,6 +38,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
+from ._batch_step import by_row, explicit_step, stage_buffer
 from ._custom_types import Scalar
 from ._stepwise_adjoint import (
     AbstractStepRecorder,
@@ -166,6 +166,7 @@ def integrate(
     batchable = (
         batch_loop
         and isinstance(solver, diffrax.AbstractERK)
+        and isinstance(solver.tableau, diffrax.ButcherTableau)
         and isinstance(progress_meter, diffrax.NoProgressMeter)
     )
     if not batchable:
@@ -202,26 +203,6 @@ def _of_diffrax(condition: Callable) -> Callable:
     return cond_fn
 
 
-class _BatchTerm(diffrax.AbstractTerm):
-    """The batch in the time $s \\in [0, 1]$ of one step: sample $b$ at
-    $t_b + s h_b$ (exactly $t_b + h_b$ at $s = 1$, as diffrax's stages), control
-    $h_b\\,ds$."""
-
-    field: Callable  # (time of each sample, batched y) -> batched vector field
-    t0: Float[Array, " batch"]
-    t1: Float[Array, " batch"]
-
-    def vf(self, s, y, args):
-        t = jnp.where(s == 1, self.t1, self.t0 + s * (self.t1 - self.t0))
-        return self.field(t, y)
-
-    def contr(self, s0, s1, **kwargs):
-        return (s1 - s0) * (self.t1 - self.t0)
-
-    def prod(self, vf, control):
-        return jax.tree.map(lambda v: _by_row(control, v) * v, vf)
-
-
 class _Wrapped(diffrax.AbstractTerm):
     """`term` as `diffrax.diffeqsolve` hands it to the step-size controller's
     `init`: wrapped (diffrax wraps every term in its time direction), so that the
@@ -246,13 +227,8 @@ def _float_before(x: Array) -> Array:
     return jnp.where(x == 0, -jnp.finfo(x.dtype).tiny, jnp.nextafter(x, -jnp.inf))
 
 
-def _by_row(x: Array, like: Array) -> Array:
-    """`x` of shape `(batch,)` shaped to broadcast against `like` row by row."""
-    return x.reshape(x.shape + (1,) * (like.ndim - 1))
-
-
 def _select(pred: Bool[Array, " batch"], new: PyTree, old: PyTree) -> PyTree:
-    return jax.tree.map(lambda n, o: jnp.where(_by_row(pred, n), n, o), new, old)
+    return jax.tree.map(lambda n, o: jnp.where(by_row(pred, n), n, o), new, old)
 
 
 def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axes):
@@ -295,11 +271,8 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
     batch, n_times = ts.shape
     rows = jnp.arange(batch)
     t0, t1 = ts[:, 0], ts[:, -1]
-    solver_state = jax.eval_shape(
-        per_sample(lambda s: solver.init(term, s.ts[0], s.ts[-1], s.y0, s.args)),
-        arrays,
-    )
-    fsal = solver_state is not None  # first stage the same as the last one
+    tableau = solver.tableau
+    fsal = tableau.fsal  # the first stage the same as the last one
     carry = dict(
         tprev=t0,
         tnext=tnext,
@@ -321,6 +294,8 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
             lambda x: jnp.full((batch, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype),
             y,
         ),
+        # the stage increments (of the last step tried)
+        ks=stage_buffer(tableau, y),
     )
 
     def unfinished(c):
@@ -346,9 +321,14 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
                 lambda: _select(redo, field(arrays, c["tprev"], c["y"]), f0),
                 lambda: f0,
             )
-        step_term = _BatchTerm(partial(field, arrays), c["tprev"], c["tnext"])
-        y1, y_error, dense, solver_state, _ = solver.step(
-            step_term, 0.0, 1.0, c["y"], None, (False, f0) if fsal else None, False
+        y1, y_error, ks, f_last = explicit_step(
+            tableau,
+            partial(field, arrays),
+            c["tprev"],
+            c["tnext"],
+            c["y"],
+            f0 if fsal else None,
+            c["ks"],
         )
         y_error = jax.tree.map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
         keep, tprev, tnext, made_jump, controller_state, result = adapt(
@@ -360,9 +340,10 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
         )
         y = _select(keep, y1, c["y"])
         if fsal:
-            f0 = _select(keep, solver_state[1], f0)
+            f0 = _select(keep, f_last, f0)
         made_jump = jnp.where(keep, made_jump, c["made_jump"])
         result = jnp.where(c["result"] == _SUCCESSFUL, result._value, c["result"])
+        dense = dict(y0=c["y"], y1=y1, k=ks)
         outputs = _save_outputs(solver, dense, c, active & keep, ts, rows, n_times)
         values = evaluate_conditions(tprev, y)
         mask, had_event = [], jnp.zeros(batch, bool)
@@ -383,9 +364,11 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
             values=values,
             mask=tuple(mask),
         )
-        # the outputs are written only where a step was accepted
-        frozen = {k: v for k, v in c.items() if k not in outputs}
-        return _select(active, new, frozen) | outputs
+        # the outputs are written only where a step was accepted; the stage
+        # increments are those of the step just tried (written before read)
+        written = outputs | dict(ks=ks)
+        frozen = {k: v for k, v in c.items() if k not in written}
+        return _select(active, new, frozen) | written
 
     c = jax.lax.while_loop(lambda c: jnp.any(running(c)), body, carry)
     result = jnp.where(unfinished(c), _MAX_STEPS, c["result"])
@@ -402,15 +385,16 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
 
 def _interpolation(solver, dense) -> Callable:
     """`evaluate(dense, t0, t1, t)`: the solver's dense output of each sample's step
-    from `t0` to `t1`, at its own `t`.
+    from `t0` to `t1`, at its own `t`; `dense`: the step's `y0`, `y1` and stage
+    increments `k`.
 
     The interpolants of diffrax's Runge-Kutta solvers are linear in the step's
-    $y_0$, $y_1$ and stages $k_i$: $y(t) = c_0 y_0 + c_1 y_1 + \\sum_i c_{2+i} k_i$.
-    The coefficients $c$ of each sample are the interpolant of the unit vectors
-    (`vmap`-ed over the samples, a few numbers each), and the sum runs on the
-    whole batch: `vmap` of the interpolant itself contracts each sample's stages
-    on its own, three times slower in `benchmarks/loop.py`'s batch loop. (Every
-    diffrax Runge-Kutta step gives its dense output as `y0`, `y1` and `k`.)"""
+    $y_0$, $y_1$ and stage increments $k_i = h f_i$:
+    $y(t) = c_0 y_0 + c_1 y_1 + \\sum_i c_{2+i} k_i$. The coefficients $c$ of each
+    sample are the interpolant of the unit vectors (`vmap`-ed over the samples, a
+    few numbers each), and the sum runs on the whole batch: `vmap` of the
+    interpolant itself contracts each sample's stages on its own, three times
+    slower in `benchmarks/loop.py`'s batch loop."""
     stages = jax.tree.leaves(dense["k"])[0].shape[0]
     unit = jnp.eye(2 + stages, dtype=jax.tree.leaves(dense["y0"])[0].dtype)
 
@@ -422,9 +406,9 @@ def _interpolation(solver, dense) -> Callable:
         c = jax.vmap(coefficients)(t0, t1, t)  # (batch, 2 + stages)
 
         def combine(y0, y1, k):
-            y = _by_row(c[:, 0], y0) * y0 + _by_row(c[:, 1], y1) * y1
+            y = by_row(c[:, 0], y0) * y0 + by_row(c[:, 1], y1) * y1
             for i in range(stages):
-                y = y + _by_row(c[:, 2 + i], k[i]) * k[i]
+                y = y + by_row(c[:, 2 + i], k[i]) * k[i]
             return y
 
         return jax.tree.map(combine, info["y0"], info["y1"], info["k"])

@@ -13,6 +13,7 @@ import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
 from ._custom_types import Scalar
+from ._fused_sums import all_finite
 from ._stepwise_adjoint import AbstractStepRecorder, AcceptedSteps
 
 # A step shorter than this many units in the last place of the times that gives NaN
@@ -135,7 +136,7 @@ class StopFailedSteps(AbstractStepRecorder):
         )  # fmt: skip
         finite = jnp.isfinite(t1) & jnp.isfinite(next_t1)
         for leaf in jax.tree.leaves(y1_candidate):
-            finite = finite & jnp.all(jnp.isfinite(leaf))
+            finite = finite & all_finite(leaf)  # (a sum that XLA fuses)
         # `not >=`, `not >`: also true for NaN
         short = jnp.logical_not(t1 - t0 >= self.min_step)
         stalled = jnp.logical_not(next_t1 > next_t0)

@@ -1,9 +1,18 @@
 """`simulate(..., batch_loop=True)` under `vmap` integrates the batch in one loop, each
 element with its own steps. Checked against `vmap` of diffrax's own loop (the
-default, which equals single runs to rounding): the same number of steps, statuses,
-events and event times, and the same states to rounding, in batches where elements
-stop early (NaN inputs, max_steps, gimbal lock, a collapsed link, the end of sampled
-forces), take jump times, follow prescribed motion or use other solvers."""
+default, which equals single runs to rounding): the same number of steps, statuses
+and events, and the same states and event times to the solver's tolerance, in
+batches where elements stop early (NaN inputs, max_steps, gimbal lock, a collapsed
+link, the end of sampled forces), take jump times, follow prescribed motion or use
+other solvers.
+
+Why to the tolerance and not to rounding: the batch loop's step sums the stages
+elementwise, diffrax's with dot products that fuse each product into its sum, so a
+step differs by rounding (`tests/test_batch_step.py` compares single steps to a few
+units in the last place). The step-size controller turns that into steps that
+differ by rounding too, and a run into states that differ by more than one step's
+rounding: up to about 5e-12 in these runs, within their tolerance (rtol 1e-8, atol
+1e-10 by default)."""
 
 import diffrax
 import equinox as eqx
@@ -11,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import SMALL_TS, hold, run_tight, small_two_body_model
+from helpers import SMALL_TS, TIGHT, hold, run_tight, small_two_body_model
 
 import elasticoop as eo
 
@@ -28,24 +37,32 @@ def _both(run, *batched):
     return plain, loop
 
 
-def _assert_same(plain: eo.Trajectory, loop: eo.Trajectory):
+def _assert_same(plain: eo.Trajectory, loop: eo.Trajectory, rtol=1e-8, atol=1e-10):
+    """The same steps, statuses and events; the same states, energies, reactions
+    and event times to the run's tolerance (`rtol`, `atol`: simulate's defaults)."""
     for name in ("status", "event_index", "n_steps"):
         np.testing.assert_array_equal(
             getattr(loop, name), getattr(plain, name), err_msg=name
         )
-    for name in ("y", "ydot", "work", "dissipated", "event_time", "reaction"):
+    for name in ("y", "ydot", "work", "dissipated", "reaction"):
         if getattr(plain, name) is None:
             assert getattr(loop, name) is None
             continue
-        # rounding only (the same arithmetic, possibly fused differently), relative
-        # to the scale of the states (1 m, 1 m/s, 1 J) for entries near zero
         np.testing.assert_allclose(
-            getattr(loop, name),
-            getattr(plain, name),
-            rtol=1e-12,
-            atol=1e-13,
+            getattr(loop, name), getattr(plain, name), rtol=rtol, atol=atol,
             err_msg=name,
-        )
+        )  # fmt: skip
+    # an element stopped by max_steps stopped where its steps took it: the sum of
+    # step sizes that the controller set from error estimates (differences of the
+    # stages, whose rounding is large relative to them), compounded over every
+    # step; it must stop within a thousandth of a mean step of diffrax's
+    limited = np.asarray(plain.status == eo.Status.MAX_STEPS_REACHED)
+    t_loop, t_plain = np.asarray(loop.event_time), np.asarray(plain.event_time)
+    np.testing.assert_allclose(
+        t_loop[~limited], t_plain[~limited], rtol=rtol, atol=atol, err_msg="event_time"
+    )
+    mean_step = t_plain[limited] / np.asarray(plain.n_steps)[limited]
+    assert np.all(np.abs(t_loop[limited] - t_plain[limited]) < 1e-3 * mean_step)
 
 
 def _two_body(stiffness, force, y_init, max_steps=200, **options):
@@ -130,7 +147,7 @@ def test_gimbal_lock_and_collapsed_link_in_a_batch():
     np.testing.assert_array_equal(plain.status, statuses)
     np.testing.assert_array_equal(plain.event_index, [0, -1, 0, 0])
     assert float(plain.event_time[3]) == 0.0
-    _assert_same(plain, loop)
+    _assert_same(plain, loop, **TIGHT)
     # the lanes that ran are those of a batch without the collapsed start
     three = jax.vmap(lambda *a: run(*a, batch_loop=True))(
         speeds[:3], spins[:3], gaps[:3]
