@@ -123,8 +123,9 @@ def simulate(
       `diffrax.TqdmProgressMeter()` for a progress bar on a long run (default none).
     - `batch_loop`: under `jax.vmap`, integrate the whole batch in one loop, each
       element with its own steps, instead of `vmap`-ing diffrax's loop: faster
-      (1.4-1.6x per trajectory in `benchmarks/loop.py`), the same steps and results to
-      rounding, but not differentiable (forward or reverse). Explicit Runge-Kutta
+      (about 2x per trajectory in `benchmarks/loop.py`), the same steps, each equal
+      to diffrax's to rounding (results within the solver's tolerance of it), but not
+      differentiable (forward or reverse). Explicit Runge-Kutta
       solvers without a progress meter; otherwise ignored. `run_study` uses it.
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
