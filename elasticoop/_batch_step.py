@@ -73,7 +73,10 @@ def _weighted_sum(terms: list[Callable[[Array], Array]], ks: list) -> PyTree[Arr
 
 
 def _weighted(weights: np.ndarray) -> list[Callable[[Array], Array]]:
-    return [lambda k, w=w: w * k for w in weights]
+    def times(w: float) -> Callable[[Array], Array]:
+        return lambda k: w * k
+
+    return [times(float(w)) for w in weights]
 
 
 def _rows(buffer: PyTree[Array], count: int) -> list[PyTree[Array]]:
@@ -99,10 +102,10 @@ def explicit_step(
         raise ValueError("explicit_step takes the tableau of an explicit method")
     n = tableau.num_stages
     dtype = jax.tree.leaves(y0)[0].dtype
-    a = np.zeros((n, n))
+    lower = np.zeros((n, n))
     for i, row in enumerate(tableau.a_lower):
-        a[i + 1, : i + 1] = row
-    a = jnp.asarray(a, dtype)
+        lower[i + 1, : i + 1] = row
+    a = jnp.asarray(lower, dtype)
     c = jnp.asarray(np.concatenate([[tableau.c1], tableau.c]), dtype)
     h = t1 - t0
 
