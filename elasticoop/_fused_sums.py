@@ -14,7 +14,9 @@ from jaxtyping import Array, Bool, Float
 
 def sum_by_halves(x: Float[Array, " n"]) -> Float[Array, ""]:
     """The sum of a vector, adding its halves until one entry is left (where the
-    length is odd, its last entry is set aside and added at the end)."""
+    length is odd, its last entry is set aside and added at the end); 0 if empty."""
+    if x.size == 0:
+        return jnp.zeros((), x.dtype)
     aside = None
     while x.size > 1:
         if x.size % 2:

@@ -18,8 +18,10 @@ def _field(t, y, args=None):
 
 
 @pytest.mark.parametrize(
-    "solver", [diffrax.Tsit5(), diffrax.Dopri5(), diffrax.Dopri8(), diffrax.Bosh3()],
-    ids=["tsit5", "dopri5", "dopri8", "bosh3"],
+    "solver",
+    [diffrax.Tsit5(), diffrax.Dopri5(), diffrax.Dopri8(), diffrax.Bosh3(),
+     diffrax.Heun(), diffrax.Ralston()],
+    ids=["tsit5", "dopri5", "dopri8", "bosh3", "heun", "ralston"],
 )  # fmt: skip
 def test_a_step_equals_diffrax_to_rounding(solver):
     batch = 16

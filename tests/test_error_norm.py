@@ -9,6 +9,7 @@ import optimistix as optx
 import pytest
 
 from elasticoop._error_norm import rms_norm
+from elasticoop._fused_sums import all_finite, sum_by_halves
 
 
 @pytest.mark.parametrize("size", [1, 2, 3, 7, 38, 782])
@@ -58,3 +59,15 @@ def test_no_dot_product():
     assert "dot_general" in str(
         jax.make_jaxpr(jax.vmap(optx.rms_norm))(jnp.ones((4, 38)))
     )
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 7, 38, 1000])
+def test_sum_by_halves_and_all_finite(n):
+    x = jnp.asarray(np.random.default_rng(n).normal(size=n))
+    np.testing.assert_allclose(sum_by_halves(x), np.sum(np.asarray(x)), atol=1e-12)
+    assert bool(all_finite(x))
+    if n:
+        for bad in (jnp.inf, -jnp.inf, jnp.nan):
+            assert not bool(jax.jit(all_finite)(x.at[n // 2].set(bad)))
+    # no overflow: 0 * x is 0 for every finite x
+    assert bool(all_finite(jnp.full(max(n, 1), 1e308)))
