@@ -15,11 +15,11 @@ weights $e_j$, $c_i$), the arithmetic of diffrax's Runge-Kutta step for each sam
 What differs is how the sums over stages are written: elementwise, term by term in
 the tableau's order, instead of diffrax's dot product of the stage buffer with the
 tableau's row. On the CPU the dot products and what they feed cost more than the
-stages' arithmetic itself (`benchmarks/loop.py`: 2.27-2.30 against 2.67-2.68 ms per
-sample, the right-hand side alone 1.68 ms), and a dot product with the row of a
-tableau fuses each product into its sum (FMA), where XLA's elementwise code rounds
-the product first. So the results equal diffrax's step to rounding (about one unit
-in the last place a stage), not bitwise.
+stages' arithmetic itself (`benchmarks/loop.py`: the batch loop took 1.27-1.34
+times the right-hand side alone, 1.58-1.62 with the dot products), and a dot
+product with the row of a tableau fuses each product into its sum (FMA), where
+XLA's elementwise code rounds the product first. So the results equal diffrax's
+step to rounding (about one unit in the last place a stage), not bitwise.
 
 The stages run in a `lax.fori_loop` (one copy of the vector field in the compiled
 program: with six copies, one a stage, XLA compiled the vector field slower), over
