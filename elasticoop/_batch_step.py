@@ -133,9 +133,10 @@ def explicit_step(
     first = 0
     if f0 is not None:
         k_buffer, first = write(k_buffer, 0, f0), 1
-    zeros = jax.tree.map(jnp.zeros_like, y0)
+    # (the stage's input and vector field start as arrays of their shape, which
+    # the first stage overwrites)
     k_buffer, y_last, f_last = jax.lax.fori_loop(
-        first, n, stage, (k_buffer, zeros, zeros)
+        first, n, stage, (k_buffer, y0, y0 if f0 is None else f0)
     )
     ks = _rows(k_buffer, n)
     if tableau.ssal:  # b_j = a_sj: the last stage's input

@@ -277,10 +277,10 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
         tprev=t0,
         tnext=tnext,
         y=y,
-        # the first stage of the next step (FSAL), evaluated where `fresh` (no step
-        # accepted yet) or after a jump
-        f0=jax.tree.map(jnp.zeros_like, y) if fsal else None,
-        fresh=jnp.ones(batch, bool),
+        # the first stage of the next step (FSAL): at the start as the solver's
+        # `init` evaluates it, then the last stage of the step accepted, evaluated
+        # again after a jump
+        f0=field(arrays, t0, y) if fsal else None,
         made_jump=jnp.zeros(batch, bool),
         controller_state=controller_state,
         result=jnp.full(batch, _SUCCESSFUL, jnp.int32),
@@ -304,18 +304,26 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
     def running(c):
         return unfinished(c) & (c["num_steps"] < max_steps)
 
+    jumps = []  # whether the controller may report a jump (see below)
+
     def adapt(s, tprev, tnext, y0, y1, y_error, state):
-        return s.controller.wrap(1).adapt_step_size(
+        out = s.controller.wrap(1).adapt_step_size(
             tprev, tnext, y0, y1, s.args, y_error, error_order, state
         )
+        jumps.append(out[3] is not False)
+        return out
 
     adapt = per_sample(adapt, 0, 0, 0, 0, 0, 0)
+    # A controller that never jumps (diffrax's `PIDController`) returns the Python
+    # constant `False`: then the loop need not test for jumps at every step.
+    jax.eval_shape(adapt, arrays, t0, t0, y, y, y, controller_state)
+    may_jump = any(jumps)
 
     def body(c):
         active = running(c)
         f0 = c["f0"]
-        if fsal:
-            redo = (c["fresh"] | c["made_jump"]) & active
+        if fsal and may_jump:
+            redo = c["made_jump"] & active
             f0 = jax.lax.cond(
                 jnp.any(redo),
                 lambda: _select(redo, field(arrays, c["tprev"], c["y"]), f0),
@@ -356,7 +364,6 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
             tnext=tnext,
             y=y,
             f0=f0,
-            fresh=c["fresh"] & ~keep,
             made_jump=made_jump,
             controller_state=controller_state,
             result=jnp.where(had_event, _EVENT, result),
@@ -391,16 +398,24 @@ def _interpolation(solver, dense) -> Callable:
     The interpolants of diffrax's Runge-Kutta solvers are linear in the step's
     $y_0$, $y_1$ and stage increments $k_i = h f_i$:
     $y(t) = c_0 y_0 + c_1 y_1 + \\sum_i c_{2+i} k_i$. The coefficients $c$ of each
-    sample are the interpolant of the unit vectors (`vmap`-ed over the samples, a
-    few numbers each), and the sum runs on the whole batch: `vmap` of the
-    interpolant itself contracts each sample's stages on its own, three times
-    slower in `benchmarks/loop.py`'s batch loop."""
+    sample are the gradient of the interpolant with respect to $y_0$, $y_1$ and the
+    $k_i$ (`vmap`-ed over the samples, a few numbers each), and the sum runs on the
+    whole batch: `vmap` of the interpolant itself contracts each sample's stages on
+    its own, three times slower in `benchmarks/loop.py`'s batch loop. (The
+    interpolant of the unit vectors gives the same coefficients, but through a
+    dot product with the identity, which XLA's CPU backend hands to a matrix
+    kernel: about 7 us of each save of 128 samples, where the gradient's products
+    fuse.)"""
     stages = jax.tree.leaves(dense["k"])[0].shape[0]
-    unit = jnp.eye(2 + stages, dtype=jax.tree.leaves(dense["y0"])[0].dtype)
+    dtype = jax.tree.leaves(dense["y0"])[0].dtype
 
     def coefficients(t0, t1, t):
-        basis = dict(y0=unit[0], y1=unit[1], k=unit[2:])
-        return solver.interpolation_cls(t0=t0, t1=t1, **basis).evaluate(t)
+        def value(basis):
+            return solver.interpolation_cls(t0=t0, t1=t1, **basis).evaluate(t)
+
+        zero = jnp.zeros((), dtype)
+        c = jax.grad(value)(dict(y0=zero, y1=zero, k=jnp.zeros(stages, dtype)))
+        return jnp.concatenate([c["y0"][None], c["y1"][None], c["k"]])
 
     def evaluate(info, t0, t1, t):
         c = jax.vmap(coefficients)(t0, t1, t)  # (batch, 2 + stages)
