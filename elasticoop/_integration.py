@@ -287,8 +287,9 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
         num_steps=jnp.zeros(batch, jnp.int32),
         values=evaluate_conditions(t0, y),
         mask=tuple(jnp.zeros(batch, bool) for _ in conditions),
-        next_time=jnp.zeros(batch, jnp.int32),  # index into ts
-        next_slot=jnp.zeros(batch, jnp.int32),  # index into the outputs
+        # the next output: its index into ts, and its slot in the outputs (ts[0]
+        # is saved too, at the first step, so the two are one index)
+        next_time=jnp.zeros(batch, jnp.int32),
         saved_ts=jnp.full((batch, n_times + 1), jnp.inf, t0.dtype),
         saved_ys=jax.tree.map(
             lambda x: jnp.full((batch, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype),
@@ -380,7 +381,7 @@ def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, ax
     c = jax.lax.while_loop(lambda c: jnp.any(running(c)), body, carry)
     result = jnp.where(unfinished(c), _MAX_STEPS, c["result"])
     # the end state after the outputs, as diffrax's SaveAt(t1=True)
-    slot = c["next_slot"]
+    slot = c["next_time"]
     saved_ts = c["saved_ts"].at[rows, slot].set(c["tprev"], mode="drop")
     saved_ys = jax.tree.map(
         lambda b, v: b.at[rows, slot].set(v, mode="drop"), c["saved_ys"], c["y"]
@@ -442,20 +443,20 @@ def _save_outputs(solver, dense, c, accepted, ts, rows, n_times) -> dict:
         return accepted & (index < n_times) & (t <= c["tnext"]), t
 
     def save(state):
-        index, slot, saved_ts, saved_ys = state
+        index, saved_ts, saved_ys = state
         now, t = due(state)
         y = evaluate(dense, c["tprev"], c["tnext"], t)
-        slot_now = jnp.where(now, slot, n_times + 1)  # out of range: not written
+        slot_now = jnp.where(now, index, n_times + 1)  # out of range: not written
         saved_ts = saved_ts.at[rows, slot_now].set(t, mode="drop")
         saved_ys = jax.tree.map(
             lambda b, v: b.at[rows, slot_now].set(v, mode="drop"), saved_ys, y
         )
         step = now.astype(index.dtype)
-        return index + step, slot + step, saved_ts, saved_ys
+        return index + step, saved_ts, saved_ys
 
     def pending(state):
         return jnp.any(due(state)[0])
 
-    state = (c["next_time"], c["next_slot"], c["saved_ts"], c["saved_ys"])
+    state = (c["next_time"], c["saved_ts"], c["saved_ys"])
     state = jax.lax.while_loop(pending, save, state)
-    return dict(zip(("next_time", "next_slot", "saved_ts", "saved_ys"), state))
+    return dict(zip(("next_time", "saved_ts", "saved_ys"), state))
