@@ -4,24 +4,8 @@
 step-size controller, output times `ts` plus the final state, stop conditions
 without a root finder, the controller's final state). Asked for `batch_loop`, it
 keeps doing so on one run, but when `jax.vmap` batches it, it integrates the whole
-batch in one loop instead of `vmap`-ing diffrax's (`jax.custom_batching.custom_vmap`).
-
-Why: `vmap` of diffrax's loop runs the solver's step under `vmap`, which costs
-about three times the step on one batched array (`benchmarks/loop.py`: the Tsit5
-step alone). The batch loop steps the batched state at once, each sample $b$ from
-its own time $t_b$ over its own step $h_b$, with the solver's Butcher tableau
-(`_batch_step.py`: diffrax's arithmetic, its sums over the stages written
-elementwise; equal to diffrax's step to rounding). Everything else is diffrax's,
-per sample (`vmap`-ed, cheap scalars): the step-size controller's `init` and
-`adapt_step_size`, the solver's interpolation for the outputs, and the loop's rules
-as `diffrax.diffeqsolve` applies them (the end clipped within 100 ulps of $t_1$,
-the first stop condition that changes sign from positive to non-positive ends the
-run at the end of that step, the first failure kept, `max_steps`). One sample's
-steps never depend on the others: the first stage of a step is reused from the
-step before (FSAL) or evaluated for that sample alone. The tests compare batches
-with `vmap` of diffrax's loop: the same steps, statuses and events, and states
-equal to within the solver's tolerance (a step's rounding, carried through the
-controller's choice of the next steps: up to 5e-12 at the default tolerances).
+batch in one loop instead of `vmap`-ing diffrax's (`jax.custom_batching.custom_vmap`;
+the loop and why: `_batch_loop.py`).
 
 Not differentiable (nor under `jax.jacfwd`): use it for forward runs of batches
 (Monte Carlo), not for gradients. Explicit Runge-Kutta solvers only; with another
@@ -29,47 +13,23 @@ solver, or with a progress meter, `batch_loop` falls back on `vmap` of diffrax.
 """
 
 from collections.abc import Callable, Sequence
-from functools import partial
 from typing import Any
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, PyTree
+from jaxtyping import Array, Float, PyTree
 
-from ._batch_step import by_row, explicit_step, stage_buffer
+from ._batch_loop import batch_solve
 from ._custom_types import Scalar
+from ._outcome import Outcome
 from ._stepwise_adjoint import (
     AbstractStepRecorder,
     StepwiseAdjoint,
     check_solver,
     stepwise_solve,
 )
-
-
-def result_code(result: Any) -> int:
-    """The integer of one of diffrax's `RESULTS`, as `Outcome.result` holds it."""
-    return int(result._value)
-
-
-_SUCCESSFUL = result_code(diffrax.RESULTS.successful)
-_EVENT = result_code(diffrax.RESULTS.event_occurred)
-_MAX_STEPS = result_code(diffrax.RESULTS.max_steps_reached)
-
-
-class Outcome(eqx.Module):
-    """What `simulate` reads of a solve: the states at `ts` then at the end (`ts`
-    is inf past the end, as diffrax leaves it), diffrax's `RESULTS` code, which
-    stop condition ended the run, the controller's final state and the number of
-    steps tried. A leading batch axis where the batch loop made it."""
-
-    ts: Float[Array, "*batch saves"]
-    ys: PyTree[Array]
-    result: Int[Array, "*batch"]
-    event_mask: tuple[Bool[Array, "*batch"], ...]
-    controller_state: PyTree
-    num_steps: Int[Array, "*batch"]
 
 
 class _Setup(eqx.Module):
@@ -178,7 +138,7 @@ def integrate(
     def _batched(axis_size, in_batched, arrays):
         (batched,) = in_batched
         axes = jax.tree.map(lambda b: 0 if b else None, batched)
-        out = _batch_solve(
+        out = batch_solve(
             vector_field, solver, conditions, max_steps, static, arrays, axes
         )
         return out, jax.tree.map(lambda _: True, out)
@@ -201,262 +161,3 @@ def _of_diffrax(condition: Callable) -> Callable:
         return condition(t, y, args)
 
     return cond_fn
-
-
-class _Wrapped(diffrax.AbstractTerm):
-    """`term` as `diffrax.diffeqsolve` hands it to the step-size controller's
-    `init`: wrapped (diffrax wraps every term in its time direction), so that the
-    controller picks the same first step as there (diffrax 0.7 estimates one for an
-    `ODETerm` only, and tries 0.01 for any other term). The tests compare the
-    steps of a batch with single runs."""
-
-    term: diffrax.AbstractTerm
-
-    def vf(self, t, y, args):
-        return self.term.vf(t, y, args)
-
-    def contr(self, t0, t1, **kwargs):
-        return self.term.contr(t0, t1, **kwargs)
-
-    def prod(self, vf, control):
-        return self.term.prod(vf, control)
-
-
-def _float_before(x: Array) -> Array:
-    """The float before `x` (diffrax's `t1 - 100 ulps` is 100 of these)."""
-    return jnp.where(x == 0, -jnp.finfo(x.dtype).tiny, jnp.nextafter(x, -jnp.inf))
-
-
-def _select(pred: Bool[Array, " batch"], new: PyTree, old: PyTree) -> PyTree:
-    return jax.tree.map(lambda n, o: jnp.where(by_row(pred, n), n, o), new, old)
-
-
-def _batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axes):
-    """`integrate`'s solve for a batch, in one loop (the module's docstring).
-    `axes`: 0 for the leaves of `arrays` that are batched, else None."""
-
-    def per_sample(fn, *sample_axes):
-        """`fn(setup, *per-sample)` for every sample."""
-
-        def one(arrays, *xs):
-            return fn(eqx.combine(arrays, static), *xs)
-
-        return jax.vmap(one, in_axes=(axes, *sample_axes))
-
-    term = diffrax.ODETerm(vector_field)
-    error_order = solver.error_order(term)
-    field = per_sample(lambda s, t, y: vector_field(t, y, s.args), 0, 0)
-
-    def evaluate_conditions(t, y):
-        return tuple(
-            per_sample(lambda s, t, y, c=c: jnp.asarray(c(t, y, s.args)), 0, 0)(
-                arrays, t, y
-            )
-            for c in conditions
-        )
-
-    def init(s):
-        t_next, state = s.controller.wrap(1).init(
-            _Wrapped(term), s.ts[0], s.ts[-1], s.y0, s.dt0, s.args, solver.func,
-            error_order,
-        )  # fmt: skip
-        # within 100 ulps of the end, a step is stretched to it (as diffrax does)
-        clip_floor = s.ts[-1]
-        for _ in range(100):
-            clip_floor = _float_before(clip_floor)
-        return s.ts, clip_floor, jnp.minimum(t_next, s.ts[-1]), state, s.y0
-
-    # ts: (batch, times)
-    ts, clip_floor, tnext, controller_state, y = per_sample(init)(arrays)
-    batch, n_times = ts.shape
-    rows = jnp.arange(batch)
-    t0, t1 = ts[:, 0], ts[:, -1]
-    tableau = solver.tableau
-    fsal = tableau.fsal  # the first stage the same as the last one
-    carry = dict(
-        tprev=t0,
-        tnext=tnext,
-        y=y,
-        # the first stage of the next step (FSAL): at the start as the solver's
-        # `init` evaluates it, then the last stage of the step accepted, evaluated
-        # again after a jump
-        f0=field(arrays, t0, y) if fsal else None,
-        made_jump=jnp.zeros(batch, bool),
-        controller_state=controller_state,
-        result=jnp.full(batch, _SUCCESSFUL, jnp.int32),
-        num_steps=jnp.zeros(batch, jnp.int32),
-        values=evaluate_conditions(t0, y),
-        mask=tuple(jnp.zeros(batch, bool) for _ in conditions),
-        # the next output: its index into ts, and its slot in the outputs (ts[0]
-        # is saved too, at the first step, so the two are one index)
-        next_time=jnp.zeros(batch, jnp.int32),
-        saved_ts=jnp.full((batch, n_times + 1), jnp.inf, t0.dtype),
-        saved_ys=jax.tree.map(
-            lambda x: jnp.full((batch, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype),
-            y,
-        ),
-        # the stage increments (of the last step tried)
-        ks=stage_buffer(tableau, y),
-    )
-
-    def unfinished(c):
-        return (c["tprev"] < t1) & (c["result"] == _SUCCESSFUL)
-
-    def running(c):
-        return unfinished(c) & (c["num_steps"] < max_steps)
-
-    jumps = []  # whether the controller may report a jump (see below)
-
-    def adapt(s, tprev, tnext, y0, y1, y_error, state):
-        out = s.controller.wrap(1).adapt_step_size(
-            tprev, tnext, y0, y1, s.args, y_error, error_order, state
-        )
-        jumps.append(out[3] is not False)
-        return out
-
-    adapt = per_sample(adapt, 0, 0, 0, 0, 0, 0)
-    # A controller that never jumps (diffrax's `PIDController`) returns the Python
-    # constant `False`: then the loop need not test for jumps at every step.
-    jax.eval_shape(adapt, arrays, t0, t0, y, y, y, controller_state)
-    may_jump = any(jumps)
-
-    def body(c):
-        active = running(c)
-        f0 = c["f0"]
-        if fsal and may_jump:
-            redo = c["made_jump"] & active
-            f0 = jax.lax.cond(
-                jnp.any(redo),
-                lambda: _select(redo, field(arrays, c["tprev"], c["y"]), f0),
-                lambda: f0,
-            )
-        y1, y_error, ks, f_last = explicit_step(
-            tableau,
-            partial(field, arrays),
-            c["tprev"],
-            c["tnext"],
-            c["y"],
-            f0 if fsal else None,
-            c["ks"],
-        )
-        y_error = jax.tree.map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
-        keep, tprev, tnext, made_jump, controller_state, result = adapt(
-            arrays, c["tprev"], c["tnext"], c["y"], y1, y_error, c["controller_state"]
-        )
-        tprev = jnp.minimum(tprev, t1)
-        tnext = jnp.where(
-            tnext > clip_floor, jnp.where(keep, t1, tprev + 0.5 * (t1 - tprev)), tnext
-        )
-        y = _select(keep, y1, c["y"])
-        if fsal:
-            f0 = _select(keep, f_last, f0)
-        made_jump = jnp.where(keep, made_jump, c["made_jump"])
-        result = jnp.where(c["result"] == _SUCCESSFUL, result._value, c["result"])
-        dense = dict(y0=c["y"], y1=y1, k=ks)
-        outputs = _save_outputs(solver, dense, c, active & keep, ts, rows, n_times)
-        values = evaluate_conditions(tprev, y)
-        mask, had_event = [], jnp.zeros(batch, bool)
-        for old, new in zip(c["values"], values, strict=True):
-            hit = (jnp.sign(old) > 0) & (jnp.sign(new) <= 0)
-            mask.append(hit & ~had_event)
-            had_event = had_event | hit
-        new = dict(
-            tprev=tprev,
-            tnext=tnext,
-            y=y,
-            f0=f0,
-            made_jump=made_jump,
-            controller_state=controller_state,
-            result=jnp.where(had_event, _EVENT, result),
-            num_steps=c["num_steps"] + 1,
-            values=values,
-            mask=tuple(mask),
-        )
-        # the outputs are written only where a step was accepted; the stage
-        # increments are those of the step just tried (written before read)
-        written = outputs | dict(ks=ks)
-        frozen = {k: v for k, v in c.items() if k not in written}
-        return _select(active, new, frozen) | written
-
-    c = jax.lax.while_loop(lambda c: jnp.any(running(c)), body, carry)
-    result = jnp.where(unfinished(c), _MAX_STEPS, c["result"])
-    # the end state after the outputs, as diffrax's SaveAt(t1=True)
-    slot = c["next_time"]
-    saved_ts = c["saved_ts"].at[rows, slot].set(c["tprev"], mode="drop")
-    saved_ys = jax.tree.map(
-        lambda b, v: b.at[rows, slot].set(v, mode="drop"), c["saved_ys"], c["y"]
-    )
-    return Outcome(
-        saved_ts, saved_ys, result, c["mask"], c["controller_state"], c["num_steps"]
-    )
-
-
-def _interpolation(solver, dense) -> Callable:
-    """`evaluate(dense, t0, t1, t)`: the solver's dense output of each sample's step
-    from `t0` to `t1`, at its own `t`; `dense`: the step's `y0`, `y1` and stage
-    increments `k`.
-
-    The interpolants of diffrax's Runge-Kutta solvers are linear in the step's
-    $y_0$, $y_1$ and stage increments $k_i = h f_i$:
-    $y(t) = c_0 y_0 + c_1 y_1 + \\sum_i c_{2+i} k_i$. The coefficients $c$ of each
-    sample are the gradient of the interpolant with respect to $y_0$, $y_1$ and the
-    $k_i$ (`vmap`-ed over the samples, a few numbers each), and the sum runs on the
-    whole batch: `vmap` of the interpolant itself contracts each sample's stages on
-    its own, three times slower in `benchmarks/loop.py`'s batch loop. (The
-    interpolant of the unit vectors gives the same coefficients, but through a
-    dot product with the identity, which XLA's CPU backend hands to a matrix
-    kernel: about 7 us of each save of 128 samples, where the gradient's products
-    fuse.)"""
-    stages = jax.tree.leaves(dense["k"])[0].shape[0]
-    dtype = jax.tree.leaves(dense["y0"])[0].dtype
-
-    def coefficients(t0, t1, t):
-        def value(basis):
-            return solver.interpolation_cls(t0=t0, t1=t1, **basis).evaluate(t)
-
-        zero = jnp.zeros((), dtype)
-        c = jax.grad(value)(dict(y0=zero, y1=zero, k=jnp.zeros(stages, dtype)))
-        return jnp.concatenate([c["y0"][None], c["y1"][None], c["k"]])
-
-    def evaluate(info, t0, t1, t):
-        c = jax.vmap(coefficients)(t0, t1, t)  # (batch, 2 + stages)
-
-        def combine(y0, y1, k):
-            y = by_row(c[:, 0], y0) * y0 + by_row(c[:, 1], y1) * y1
-            for i in range(stages):
-                y = y + by_row(c[:, 2 + i], k[i]) * k[i]
-            return y
-
-        return jax.tree.map(combine, info["y0"], info["y1"], info["k"])
-
-    return evaluate
-
-
-def _save_outputs(solver, dense, c, accepted, ts, rows, n_times) -> dict:
-    """The output times inside the step just accepted, from the solver's dense
-    output, written sample by sample (diffrax's `SaveAt(ts)`)."""
-    evaluate = _interpolation(solver, dense)
-
-    def due(state):
-        index = state[0]
-        t = jnp.take_along_axis(ts, jnp.minimum(index, n_times - 1)[:, None], 1)[:, 0]
-        return accepted & (index < n_times) & (t <= c["tnext"]), t
-
-    def save(state):
-        index, saved_ts, saved_ys = state
-        now, t = due(state)
-        y = evaluate(dense, c["tprev"], c["tnext"], t)
-        slot_now = jnp.where(now, index, n_times + 1)  # out of range: not written
-        saved_ts = saved_ts.at[rows, slot_now].set(t, mode="drop")
-        saved_ys = jax.tree.map(
-            lambda b, v: b.at[rows, slot_now].set(v, mode="drop"), saved_ys, y
-        )
-        step = now.astype(index.dtype)
-        return index + step, saved_ts, saved_ys
-
-    def pending(state):
-        return jnp.any(due(state)[0])
-
-    state = (c["next_time"], c["saved_ts"], c["saved_ys"])
-    state = jax.lax.while_loop(pending, save, state)
-    return dict(zip(("next_time", "saved_ts", "saved_ys"), state))

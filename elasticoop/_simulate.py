@@ -29,11 +29,12 @@ from ._forces import (
     pad_to_bodies,
     sampled_interval,
 )
-from ._integration import integrate, result_code
+from ._integration import integrate
 from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
 from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions, check_initial_step
+from ._outcome import result_code
 from ._status import Status, status_message
 from ._step_control import MIN_STEP_ULPS, StopFailedSteps
 from ._stepwise_adjoint import StepwiseAdjoint
