@@ -150,15 +150,19 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
         return out
 
     adapt = per_sample(adapt, 0, 0, 0, 0, 0, 0)
-    # A controller that never jumps (diffrax's `PIDController`) returns the Python
-    # constant `False`: then the loop need not test for jumps at every step.
+    # After a jump, the first stage of a first-same-as-last tableau is evaluated
+    # again. A controller that never jumps (diffrax's `PIDController`) returns the
+    # Python constant `False`: then the loop neither records jumps nor tests for
+    # them at every step.
     jax.eval_shape(adapt, arrays, t0, t0, y, y, y, controller_state)
-    may_jump = any(jumps)
+    track_jumps = fsal and any(jumps)
+    if not track_jumps:
+        carry["made_jump"] = None
 
     def body(c):
         active = running(c)
         f0 = c["f0"]
-        if fsal and may_jump:
+        if track_jumps:
             redo = c["made_jump"] & active
             f0 = jax.lax.cond(
                 jnp.any(redo),
@@ -185,7 +189,10 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
         y = _select(keep, y1, c["y"])
         if fsal:
             f0 = _select(keep, f_last, f0)
-        made_jump = jnp.where(keep, made_jump, c["made_jump"])
+        if track_jumps:
+            made_jump = jnp.where(keep, made_jump, c["made_jump"])
+        else:
+            made_jump = None
         result = jnp.where(c["result"] == SUCCESSFUL, result._value, c["result"])
         dense = dict(y0=c["y"], y1=y1, k=ks)
         outputs = _save_outputs(solver, dense, c, active & keep, ts, rows, n_times)
