@@ -175,7 +175,7 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
             c["tprev"],
             c["tnext"],
             c["y"],
-            f0 if fsal else None,
+            f0,  # None where the tableau is not first-same-as-last
             c["ks"],
         )
         y_error = jax.tree.map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
