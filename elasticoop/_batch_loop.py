@@ -258,15 +258,15 @@ def _interpolation(solver, dense) -> Callable:
 
         zero = jnp.zeros((), dtype)
         c = jax.grad(value)(dict(y0=zero, y1=zero, k=jnp.zeros(stages, dtype)))
-        return jnp.concatenate([c["y0"][None], c["y1"][None], c["k"]])
+        return (c["y0"], c["y1"], *(c["k"][i] for i in range(stages)))
 
     def evaluate(info, t0, t1, t):
-        c = jax.vmap(coefficients)(t0, t1, t)  # (batch, 2 + stages)
+        c = jax.vmap(coefficients)(t0, t1, t)  # 2 + stages arrays (batch,)
 
         def combine(y0, y1, k):
-            y = by_row(c[:, 0], y0) * y0 + by_row(c[:, 1], y1) * y1
+            y = by_row(c[0], y0) * y0 + by_row(c[1], y1) * y1
             for i in range(stages):
-                y = y + by_row(c[:, 2 + i], k[i]) * k[i]
+                y = y + by_row(c[2 + i], k[i]) * k[i]
             return y
 
         return jax.tree.map(combine, info["y0"], info["y1"], info["k"])
