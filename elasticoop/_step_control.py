@@ -147,7 +147,7 @@ class StopFailedSteps(AbstractStepRecorder):
         if self.room == 1:
             # the last accepted step: a rejected one leaves it as it was
             def put(buffer, value):
-                return buffer.at[0].set(jnp.where(keep, value, buffer[0]))
+                return jnp.where(keep, value[None], buffer)
 
         else:
             # Every step writes the slot after the accepted ones: a rejected step
