@@ -6,7 +6,7 @@ Problem: the 3-body MobileModel (object + 2 grasps, 2 connections), 2 s simulate
 rtol 1e-8, atol 1e-10, Tsit5, grasp stiffness log-normal (12 scalars, 20 % scatter),
 constant lift; kept per sample: peak elastic force per connection and final object
 pose error (21 output times). For each batch size B the study has B samples, one
-chunk, integrated `run_study`'s default width (`default_batch_width`: 256, or
+chunk, integrated `run_study`'s default width (`default_batch_width`: 128, or
 `B / devices` when fewer) at a time on each device (`vmap`; the host's cores are
 exposed as devices, so both cores of a 2-core machine work).
 
@@ -116,7 +116,7 @@ def jax_throughput(batch: int, repeats: int) -> dict:
     n_dev = min(len(devices), batch)
     devices = devices[:n_dev]
     study = three_body_study(batch)
-    # run_study's default width (256, or fewer when the batch does not fill the devices)
+    # run_study's default width (128, or fewer when the batch does not fill the devices)
     width = mc.default_batch_width(study, mc.memory_budget_for(devices), n_dev)
     run = lambda: mc.run_study(  # noqa: E731
         study, chunk_size=batch, batch_width=width, devices=devices, progress=False

@@ -148,6 +148,30 @@ def test_command_line_pages_document_every_command_and_option():
                 assert written, f"elasticoop {name}: option {option} undocumented"
 
 
+def test_command_line_pages_give_the_defaults_of_the_help():
+    """Where an option's help names its default, the page's line on that option
+    names the same one (a page once kept a default the code had changed)."""
+    pages = [DOCS / "cli.md", *sorted(DOCS.glob("cli_*.md"))]
+    lines = [line for page in pages for line in page.read_text().splitlines()]
+    checked = 0
+    for parser in subcommands().values():
+        for action in parser._actions:
+            default = re.search(r"\(default ([^,\s)]+)", action.help or "")
+            if default is None:
+                continue
+            option = action.option_strings[0]
+            for line in lines:
+                if re.search(rf"`{re.escape(option)}\b", line):
+                    written = re.search(r"\(default ([^,\s)]+)", line)
+                    assert written, f"{option}: the default is not on its line"
+                    assert written.group(1) == default.group(1), (
+                        f"{option}: the page says default {written.group(1)}, the "
+                        f"help {default.group(1)}"
+                    )
+                    checked += 1
+    assert checked >= 2  # --count of modes, --batch-width of montecarlo
+
+
 def python_blocks(page: pathlib.Path) -> list[str]:
     return re.findall(r"^```python\n(.*?)^```", page.read_text(), re.M | re.S)
 
