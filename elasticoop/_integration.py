@@ -85,7 +85,8 @@ def integrate(
         controller = setup.controller
         if keep_steps:
             assert isinstance(controller, AbstractStepRecorder)  # (checked above)
-            controller = controller.recording(max_steps)
+            assert isinstance(adjoint, StepwiseAdjoint)
+            controller = controller.recording(adjoint.layout(max_steps))
         sol = diffrax.diffeqsolve(
             diffrax.ODETerm(vector_field),
             solver,
@@ -120,7 +121,9 @@ def integrate(
 
     def diffrax_solve(arrays):
         if isinstance(adjoint, StepwiseAdjoint):
-            return stepwise_solve(run, vector_field, solver, static, arrays)
+            return stepwise_solve(
+                run, vector_field, solver, adjoint.layout(max_steps), static, arrays
+            )
         return run(arrays)[0]
 
     batchable = (

@@ -14,7 +14,7 @@ from jaxtyping import Array, Bool, PyTree
 
 from ._custom_types import Scalar
 from ._fused_sums import all_finite
-from ._stepwise_adjoint import AbstractStepRecorder, AcceptedSteps
+from ._stepwise_adjoint import AbstractStepRecorder, AcceptedSteps, StepLayout
 
 # A step shorter than this many units in the last place of the times that gives NaN
 # or inf ends the run: the vector field is not finite right after the current time.
@@ -30,23 +30,20 @@ class StepRecord(NamedTuple):
     nonfinite: Bool[Array, ""]
     # the time that step tried to reach
     t_tried: Scalar
-    # the accepted steps: all of them (up to the controller's `room`), or with
-    # `room=1` the last one (its start, where `locate_event` interpolates from)
+    # the last accepted step (its start, where `locate_event` interpolates from)
     steps: AcceptedSteps
+    # a recording controller's: all the accepted steps, in its `StepLayout`
+    history: AcceptedSteps | None
 
     @property
     def t_start(self) -> Scalar:
         """The start time of the last accepted step (the start of the run if none)."""
-        return self.steps.t_start[self._last()]
+        return self.steps.t_start[0]
 
     @property
     def y_start(self) -> PyTree[Array]:
         """The state at `t_start`."""
-        return jax.tree.map(lambda y: y[self._last()], self.steps.y_start)
-
-    def _last(self) -> Array:
-        room = self.steps.t_start.shape[0]
-        return jnp.clip(self.steps.n_accepted - 1, 0, room - 1)
+        return jax.tree.map(lambda y: y[0], self.steps.y_start)
 
 
 class StopFailedSteps(AbstractStepRecorder):
@@ -61,9 +58,9 @@ class StopFailedSteps(AbstractStepRecorder):
 
     Its state is a `StepRecord`: `controller`'s state, whether the last step tried
     held NaN or inf, which tells a non-finite failure from a collapse of the step
-    size on finite values, the time that step tried to reach, and the accepted
-    steps (`AcceptedSteps`): the last one, or with `recording(room)` the first
-    `room` (what `StepwiseAdjoint` replays)."""
+    size on finite values, the time that step tried to reach, the last accepted
+    step (`AcceptedSteps` of one row), and with `recording(layout)` all of them
+    in `layout` (what `StepwiseAdjoint` replays)."""
 
     controller: diffrax.AbstractAdaptiveStepSizeController
     min_step: Scalar
@@ -72,15 +69,15 @@ class StopFailedSteps(AbstractStepRecorder):
     rtol: int | float | Array | np.ndarray
     atol: int | float | Array | np.ndarray
     norm: Callable = eqx.field(static=True)
-    # how many accepted steps the state keeps (1: the last one)
-    room: int = eqx.field(static=True)
+    # where the state keeps every accepted step (None: the last one only)
+    layout: StepLayout | None = eqx.field(static=True)
 
     def __init__(
         self,
         controller: diffrax.AbstractAdaptiveStepSizeController,
         min_step: Scalar,
         halt: Bool[Array, ""],
-        room: int = 1,
+        layout: StepLayout | None = None,
     ):
         self.controller = controller
         self.min_step = min_step
@@ -88,19 +85,14 @@ class StopFailedSteps(AbstractStepRecorder):
         self.rtol = controller.rtol
         self.atol = controller.atol
         self.norm = controller.norm
-        self.room = room
+        self.layout = layout
 
-    def recording(self, room: int) -> "StopFailedSteps":
-        return StopFailedSteps(self.controller, self.min_step, self.halt, room)
+    def recording(self, layout: StepLayout) -> "StopFailedSteps":
+        return StopFailedSteps(self.controller, self.min_step, self.halt, layout)
 
     def accepted_steps(self, state: StepRecord) -> tuple[AcceptedSteps, StepRecord]:
-        last = state._last()
-        steps = state.steps
-        kept = AcceptedSteps(
-            steps.n_accepted,
-            *jax.tree.map(lambda x: x[last][None], steps[1:]),
-        )
-        return steps, state._replace(steps=kept)
+        assert state.history is not None  # (a recording controller's state)
+        return state.history, state._replace(history=None)
 
     def wrap(self, direction):
         controller = self.controller.wrap(direction)
@@ -112,18 +104,24 @@ class StopFailedSteps(AbstractStepRecorder):
         )
         t0 = jnp.asarray(t0)
 
-        def slots(x, fill):
+        def slots(x, rows, fill):
             x = jnp.asarray(x)
-            return jnp.full((self.room, *x.shape), fill, x.dtype).at[0].set(x)
+            return jnp.full((rows, *x.shape), fill, x.dtype).at[0].set(x)
 
-        times = slots(t0, jnp.inf)
+        times = slots(t0, 1, jnp.inf)
         steps = AcceptedSteps(
-            jnp.array(0, jnp.int32),
-            times,
-            times,
-            jax.tree.map(lambda y: slots(y, 0), y0),
+            jnp.array(0, jnp.int32), times, times, jax.tree.map(slots, y0, 1, 0)
         )
-        return t_next, StepRecord(state, jnp.array(False), t0, steps)
+        history = None
+        if self.layout is not None:
+            times = slots(t0, self.layout.max_steps, jnp.inf)
+            history = AcceptedSteps(
+                steps.n_accepted,
+                times,
+                times,
+                jax.tree.map(lambda y: slots(y, self.layout.spare + 1, 0), y0),
+            )
+        return t_next, StepRecord(state, jnp.array(False), t0, steps, history)
 
     def adapt_step_size(
         self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
@@ -143,28 +141,32 @@ class StopFailedSteps(AbstractStepRecorder):
         rejected = jnp.logical_not(keep)
         stop = self.halt | rejected & (short & ~finite | stalled)
         result = diffrax.RESULTS.where(stop, diffrax.RESULTS.dt_min_reached, result)
-        steps = controller_state.steps
-        if self.room == 1:
-            # the last accepted step: a rejected one leaves it as it was
-            def put(buffer, value):
-                return jnp.where(keep, value[None], buffer)
 
-        else:
-            # Every step writes the slot after the accepted ones: a rejected step
+        # the last accepted step: a rejected one leaves it as it was
+        def put_last(buffer, value):
+            return jnp.where(keep, value[None], buffer)
+
+        n_accepted = controller_state.steps.n_accepted + keep.astype(jnp.int32)
+        steps = AcceptedSteps(
+            n_accepted,
+            *jax.tree.map(put_last, controller_state.steps[1:], (t0, t1, y0)),
+        )
+        history = controller_state.history
+        if self.layout is not None:
+            assert history is not None
+            # Every step writes the slots after the accepted ones: a rejected step
             # is tried again from the same start, and the accepted one overwrites
-            # it. (A write that first reads the slot, `where(keep, new, old)`,
+            # them. (A write that first reads the slot, `where(keep, new, old)`,
             # made XLA's CPU runtime hand part of each step to its thread pool:
             # 6 ms more of a 13 ms forward run of the default scenario.)
-            slot = jnp.minimum(steps.n_accepted, self.room - 1)
-
-            def put(buffer, value):
-                return buffer.at[slot].set(value)
-
-        steps = AcceptedSteps(
-            steps.n_accepted + keep.astype(steps.n_accepted.dtype),
-            put(steps.t_start, t0),
-            put(steps.t_end, t1),
-            jax.tree.map(put, steps.y_start, y0),
-        )
-        record = StepRecord(state, ~finite, t1, steps)
+            n = history.n_accepted
+            slot = jnp.minimum(n, self.layout.max_steps - 1)
+            y_slot = jnp.minimum(self.layout.slot(n), self.layout.spare)
+            history = AcceptedSteps(
+                n_accepted,
+                history.t_start.at[slot].set(t0),
+                history.t_end.at[slot].set(t1),
+                jax.tree.map(lambda b, y: b.at[y_slot].set(y), history.y_start, y0),
+            )
+        record = StepRecord(state, ~finite, t1, steps, history)
         return keep, next_t0, next_t1, made_jump, record, result

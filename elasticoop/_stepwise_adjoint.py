@@ -58,14 +58,66 @@ from jaxtyping import Array, Float, Int, PyTree
 _BLOCK = 64
 
 
+class StepLayout(NamedTuple):
+    """Where the record of a run's accepted steps keeps each step's start state.
+
+    The first `kept` steps each have a slot; the next `2 kept` steps every second
+    one, the next `4 kept` every fourth, and so on: level $l \ge 0$ holds the
+    steps $n$ with $\text{kept}\,(2^l - 1) \le n < \text{kept}\,(2^{l+1} - 1)$
+    in `kept` slots, each step whose offset in its level is a multiple of $2^l$.
+    `levels` levels hold `max_steps` steps (the times of every step are kept).
+    A step without a slot writes the spare slot after the last (`spare`)."""
+
+    kept: int
+    levels: int
+    max_steps: int
+
+    @classmethod
+    def of(cls, max_steps: int, kept: int) -> "StepLayout":
+        """The layout for a run of at most `max_steps` steps that keeps the first
+        `kept` steps' start states."""
+        kept = max(1, min(kept, max_steps))
+        levels = 1
+        while kept * (2**levels - 1) < max_steps:
+            levels += 1
+        return cls(kept, levels, max_steps)
+
+    @property
+    def spare(self) -> int:
+        """The slot that the steps without a slot of their own write."""
+        return self.kept * self.levels
+
+    def _level(self, n: Int[Array, ""]) -> tuple[Array, Array]:
+        """The level of step `n`, and the step's offset in it."""
+        n = jnp.asarray(n, jnp.int32)
+        level = jnp.zeros((), jnp.int32)
+        for lvl in range(1, self.levels):
+            level = level + (n >= self.kept * (2**lvl - 1)).astype(jnp.int32)
+        return level, n - self.kept * (jnp.left_shift(1, level) - 1)
+
+    def slot(self, n: Int[Array, ""]) -> Int[Array, ""]:
+        """The slot of step `n`'s start state (`spare` if it has none)."""
+        level, offset = self._level(n)
+        stored = jnp.bitwise_and(offset, jnp.left_shift(1, level) - 1) == 0
+        slot = level * self.kept + jnp.right_shift(offset, level)
+        return jnp.where(stored, slot, self.spare)
+
+    def checkpoint(self, n: Int[Array, ""]) -> tuple[Array, Array]:
+        """The last step at or before step `n` with a slot, and that slot."""
+        level, offset = self._level(n)
+        back = jnp.bitwise_and(offset, jnp.left_shift(1, level) - 1)
+        return jnp.asarray(n, jnp.int32) - back, level * self.kept + jnp.right_shift(offset, level)
+
+
 class AcceptedSteps(NamedTuple):
     """The accepted steps of a solve, as `StepwiseAdjoint` replays them: how many,
-    and for each step $n$ (rows past the last are padding) its start time $t_n$,
-    end time and start state $x_n$ (a leading axis on each leaf)."""
+    and for each step $n$ (rows past the last are padding) its start time $t_n$
+    and end time, and the start states $x_n$ of the steps that have a slot in the
+    `StepLayout` (a leading axis of `spare + 1` rows on each leaf)."""
 
     n_accepted: Int[Array, ""]
-    t_start: Float[Array, " room"]
-    t_end: Float[Array, " room"]
+    t_start: Float[Array, " max_steps"]
+    t_end: Float[Array, " max_steps"]
     y_start: PyTree[Array]
 
 
@@ -79,8 +131,8 @@ class AbstractStepRecorder(diffrax.AbstractAdaptiveStepSizeController):
     Performance section.)"""
 
     @abc.abstractmethod
-    def recording(self, room: int) -> "AbstractStepRecorder":
-        """This controller, keeping the first `room` accepted steps."""
+    def recording(self, layout: StepLayout) -> "AbstractStepRecorder":
+        """This controller, keeping the accepted steps in `layout`."""
 
     @abc.abstractmethod
     def accepted_steps(self, state: Any) -> tuple[AcceptedSteps, Any]:
@@ -107,13 +159,36 @@ class StepwiseAdjoint(eqx.Module):
       use `diffrax.ForwardMode()`.
     - Explicit Runge-Kutta solvers whose dense output is built from the stages
       (Tsit5, the default, Dopri5, Dopri8, Bosh3, Heun, Ralston, Midpoint).
-    - Memory: room for `max_steps` steps,
-      $\\text{max\\_steps} \\times (12(m + 1) + 4)$ floats, 32 MB for three
-      bodies at the default `max_steps=100_000`; filling it costs time too (on
-      the default scenario the gradient took 57 against 48 ms with
-      `max_steps=4096`, `benchmarks/gradients.py`). Set `max_steps` to a few
-      times the steps the runs take.
+    - Memory: the start and end time of up to `max_steps` steps, and the start
+      states of the first `kept_steps` accepted steps, then of every second step
+      of the next `2 kept_steps`, every fourth of the next `4 kept_steps`, and so
+      on up to `max_steps` (`StepLayout`); the backward pass replays the steps
+      between two kept states from the earlier one (once more each, a run of
+      more than `kept_steps` steps only). That is $2\,\text{max\_steps} +
+      12(m + 1)\,\text{kept\_steps}\,L$ floats, with $L$ the levels it takes
+      ($\text{kept\_steps}\,(2^L - 1) \ge \text{max\_steps}$): 5.3 MB for three
+      bodies at the defaults (`max_steps=100_000`, `kept_steps=2048`, $L = 6$),
+      where keeping every step would take 32 MB, and fill it at each call (on
+      the default scenario, 1261 steps, the gradient took about 50 against 39
+      ms, `benchmarks/gradients.py`).
     """
+
+    kept_steps: int = eqx.field(default=2048, static=True)
+
+    def __check_init__(self):
+        if (
+            isinstance(self.kept_steps, bool)
+            or not isinstance(self.kept_steps, int | np.integer)
+            or self.kept_steps < _BLOCK
+        ):
+            raise ValueError(
+                f"StepwiseAdjoint: kept_steps must be an integer >= {_BLOCK}, got "
+                f"{self.kept_steps!r}"
+            )
+
+    def layout(self, max_steps: int) -> StepLayout:
+        """Where a run of at most `max_steps` steps keeps its steps."""
+        return StepLayout.of(max_steps, self.kept_steps)
 
 
 def check_solver(solver: Any) -> None:
@@ -169,13 +244,14 @@ def stepwise_solve(
     run: Callable[[Any, bool], tuple[Any, AcceptedSteps | None]],
     vector_field: Callable,
     solver: diffrax.AbstractERK,
+    layout: StepLayout,
     static: Any,
     arrays: Any,
 ) -> Any:
     """`run(arrays, keep_steps)[0]` (an `Outcome`), differentiated in reverse mode
     as the module's docstring says. `run` returns `(outcome, steps)`: with
-    `keep_steps`, the run's `AcceptedSteps`, else `None`. `arrays` and `static`
-    are `integrate`'s `_Setup` split by `eqx.partition`."""
+    `keep_steps`, the run's `AcceptedSteps` (kept in `layout`), else `None`.
+    `arrays` and `static` are `integrate`'s `_Setup` split by `eqx.partition`."""
     tableau = solver.tableau
     assert isinstance(tableau, diffrax.ButcherTableau)  # (`check_solver`)
     b = np.asarray(tableau.b_sol, dtype=float)
@@ -249,17 +325,21 @@ def stepwise_solve(
         _, sums = jax.lax.associative_scan(add, (first, shares))
         zeros = jax.tree.map(jnp.zeros_like, diff_args)
 
-        def stage_inputs(k):
-            """The inputs $X_i$ of step `k`'s stages, replayed from its start."""
+        def replay_step(k, x):
+            """The inputs $X_i$ of step `k`'s stages from its start state `x`, and
+            its end state $x + \\sum_i b_i K_i$."""
             t0, t1 = t_start[k], t_end[k]
-            h, x = t1 - t0, y_start[k]
+            h = t1 - t0
             inputs, increments = [x], []
-            for i in range(1, stages):
-                t = _stage_time(t0, t1, h, c[i - 1])
-                increments.append(h * f(t, inputs[-1], diff_args))
-                terms = [a[i - 1][j] * increments[j] for j in range(i) if a[i - 1][j]]
-                inputs.append(x + sum(terms))
-            return jnp.stack(inputs)
+            for i in range(stages):
+                if i < stages - 1 or b[i] != 0:
+                    t = _stage_time(t0, t1, h, c[i])
+                    increments.append(h * f(t, inputs[i], diff_args))
+                if i < stages - 1:
+                    terms = [a[i][j] * increments[j] for j in range(i + 1) if a[i][j]]
+                    inputs.append(x + sum(terms))
+            x_next = x + sum(b[i] * k_i for i, k_i in enumerate(increments) if b[i])
+            return jnp.stack(inputs), x_next
 
         def step_back(t0, t1, has_output, share, inputs, x_bar, p_bar):
             """The cotangents before a step from those after it, given the step's
@@ -298,9 +378,30 @@ def stepwise_solve(
             return x_bar, p_bar
 
         def replay(top):
-            """The stage inputs of steps `top - _BLOCK + 1 ... top`, at once."""
+            """The stage inputs of steps `top - _BLOCK + 1 ... top` (clipped at 0),
+            replayed at once (`vmap`) from their start states: kept ones, or
+            past the first `layout.kept` steps computed one after the other from
+            the last kept state before them."""
             ks = jnp.maximum(top - _BLOCK + 1 + jnp.arange(_BLOCK, dtype=jnp.int32), 0)
-            return jax.vmap(stage_inputs)(ks)
+            starts = y_start[jnp.minimum(ks, layout.kept - 1)]
+            if layout.levels > 1:
+                first = ks[0]
+                start, slot = layout.checkpoint(first)
+
+                def advance(k, carry):
+                    x, starts = carry
+                    # (steps before `first` write row 0, which `first` overwrites)
+                    row = jnp.maximum(k - first, 0)
+                    starts = jax.lax.dynamic_update_index_in_dim(starts, x, row, 0)
+                    return replay_step(k, x)[1], starts
+
+                # (no step to advance while the block is among the kept steps)
+                stop = jnp.where(top < layout.kept, start, top + 1)
+                _, chained = jax.lax.fori_loop(
+                    start, stop, advance, (y_start[slot], starts)
+                )
+                starts = jnp.where((ks < layout.kept)[:, None], starts, chained)
+            return jax.vmap(lambda k, x: replay_step(k, x)[0])(ks, starts)
 
         def body(carry):
             k, x_bar, p_bar, block, top = carry

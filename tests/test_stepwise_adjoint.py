@@ -10,6 +10,7 @@ import pytest
 from helpers import Wave, three_body_model, three_body_state
 
 import elasticoop as eo
+from elasticoop._stepwise_adjoint import StepLayout
 
 MODEL = three_body_model()
 Y0 = three_body_state().at[1, :3].add(jnp.array([-0.01, 0.005, 0.01]))
@@ -178,3 +179,45 @@ def test_output_times_are_not_differentiated():
 
     with pytest.raises(ValueError, match="output times ts"):
         jax.grad(final_height)(TS)
+
+
+def test_step_layout_keeps_each_kept_step_once():
+    """Every step at most once; the first `kept` all, then every 2nd, 4th, ...;
+    each step's checkpoint is the last kept step at or before it."""
+    layout = StepLayout.of(max_steps=1000, kept=64)
+    assert layout.levels == 5  # 64 * (2**5 - 1) = 1984 >= 1000 > 64 * (2**4 - 1)
+    steps = np.arange(1000, dtype=np.int32)
+    slots = np.asarray(jax.vmap(layout.slot)(jnp.asarray(steps)))
+    kept = slots != layout.spare
+    assert np.all(kept[:64])
+    assert np.all(kept[64:192:2]) and not np.any(kept[65:192:2])
+    assert np.all(kept[192:448:4]) and not np.any(kept[193:448:4])
+    assert len(set(slots[kept])) == kept.sum()
+    assert slots[kept].max() < layout.spare
+    start, slot = map(np.asarray, jax.vmap(layout.checkpoint)(jnp.asarray(steps)))
+    expected = np.maximum.accumulate(np.where(kept, steps, 0))
+    np.testing.assert_array_equal(start, expected)
+    np.testing.assert_array_equal(slot, slots[start])
+    # a run shorter than `kept` keeps every step
+    assert StepLayout.of(max_steps=40, kept=2048) == StepLayout(40, 1, 40)
+
+
+@pytest.mark.parametrize("kept", [0, 63, True])
+def test_kept_steps_is_checked(kept):
+    with pytest.raises(
+        ValueError, match=f"kept_steps must be an integer >= 64, got {kept!r}"
+    ):
+        eo.StepwiseAdjoint(kept_steps=kept)
+
+
+@pytest.mark.slow
+def test_steps_past_the_kept_ones_are_replayed():
+    """With `kept_steps=64` the run's steps past the 64th keep every 2nd, 4th and
+    8th start state; the backward pass replays the others from them."""
+    traj = eo.simulate(MODEL, Y0, YDOT0, TS, forces=LIFT, **TOL)
+    assert int(traj.n_steps) > 64 * (2**3 - 1)  # into the fourth level
+    ours = jax.jit(
+        jax.grad(lambda p: loss(p, eo.StepwiseAdjoint(kept_steps=64), max_steps=1000))
+    )(PARAMS)
+    theirs = jax.jit(jax.grad(lambda p: loss(p, None)))(PARAMS)
+    assert_close(ours, theirs)
