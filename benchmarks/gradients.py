@@ -11,8 +11,10 @@ parameters
 `RecursiveCheckpointAdjoint` (the default, `adjoint=None`: checkpoints chosen by
 diffrax from `max_steps`, 446 for 100 000; and `checkpoints=2048`, more than the
 run's steps, so that no step is recomputed twice), `jax.grad` with the library's
-`StepwiseAdjoint` (also at smoke size; and with `max_steps=4096`, a few times the
-run's steps, as its memory scales with `max_steps`), `jax.grad` with
+`StepwiseAdjoint` (also at smoke size; with `max_steps=4096`, a few times the
+run's steps, all of which it keeps either way; and with `kept_steps=512`, which
+keeps the start states of the first 512 steps and of every 2nd or 4th after them,
+replaying the others), `jax.grad` with
 `BacksolveAdjoint`
 (if diffrax accepts it here), and `jax.jacfwd` with `ForwardMode` (24 tangents).
 Scratch memory: XLA's temporary buffers of each compiled gradient (the difference
@@ -20,7 +22,8 @@ between the two checkpoint counts is what the checkpoints cost). Times are of
 compiled calls, best of 7 rounds in which the forward run, each gradient and the
 decomposition's loops are timed in turn; gradients are cross-checked against each
 other. Batch: the forward run and the default gradient `vmap`-ped over 8 parameter
-sets, time per sample, best of 3 rounds (not at smoke size).
+sets, time per sample, best of 3 rounds, and `StepwiseAdjoint`'s gradient
+`vmap`-ped, one round (not at smoke size).
 
 Decomposition (what bounds the reverse-mode ratio): the run's steps; the vector
 field alone and with its vector-Jacobian product, evaluated inside one compiled
@@ -351,12 +354,17 @@ def batched(scenario, width: int, rounds: int) -> dict:
         {"forward": (forward, (sets,)), "gradient": (gradient, (sets,))}, rounds
     )
     first = gradient(sets)
+    # StepwiseAdjoint under `vmap` (one round: it is slow there, see the README)
+    stepwise = jax.jit(jax.vmap(jax.grad(make_loss(scenario, eo.StepwiseAdjoint()))))
+    stepwise_s = interleaved_best_times({"stepwise": (stepwise, (sets,))}, 1)
     return {
         "width": width,
         "rounds": rounds,
         "forward_ms_per_sample": 1e3 * times["forward"] / width,
         "gradient_ms_per_sample": 1e3 * times["gradient"] / width,
         "over_forward": times["gradient"] / times["forward"],
+        "stepwise_gradient_ms_per_sample": 1e3 * stepwise_s["stepwise"] / width,
+        "stepwise_over_forward": stepwise_s["stepwise"] / times["forward"],
         "first_sample_gradient": np.concatenate([np.ravel(g[0]) for g in first]),
     }
 
@@ -377,12 +385,17 @@ def run(quick: bool = False) -> dict:
             100_000,
         ),
         "reverse_StepwiseAdjoint": (jax.grad, eo.StepwiseAdjoint(), 100_000),
-        # its memory (and the time to fill it) scales with max_steps: sized to the
-        # run's 1261 steps
+        # the run's 1261 steps kept at max_steps=4096 (what the default keeps)
         "reverse_StepwiseAdjoint_max_steps_4096": (
             jax.grad,
             eo.StepwiseAdjoint(),
             4096,
+        ),
+        # 512 steps kept, then every 2nd and 4th: the others replayed
+        "reverse_StepwiseAdjoint_kept_512": (
+            jax.grad,
+            eo.StepwiseAdjoint(kept_steps=512),
+            100_000,
         ),
         "reverse_BacksolveAdjoint": (jax.grad, diffrax.BacksolveAdjoint(), 100_000),
         "forward_ForwardMode_jacfwd": (jax.jacfwd, diffrax.ForwardMode(), 100_000),

@@ -31,6 +31,7 @@ from jaxtyping import Array, Bool, PyTree
 
 from ._batch_step import by_row, explicit_step, stage_buffer
 from ._outcome import EVENT_OCCURRED, MAX_STEPS_REACHED, SUCCESSFUL, Outcome
+from ._stepwise_adjoint import AbstractStepRecorder
 
 
 class _Wrapped(diffrax.AbstractTerm):
@@ -103,6 +104,14 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
 
     # ts: (batch, times)
     ts, clip_floor, tnext, controller_state, y = per_sample(init)(arrays)
+    # A controller that records the steps (for `StepwiseAdjoint`) keeps the record
+    # apart, written in place: selected with the rest of the loop's state, it
+    # would be copied at every step.
+    recorder = static.controller
+    recording = isinstance(recorder, AbstractStepRecorder) and recorder.records
+    record = None
+    if recording:
+        record, controller_state = recorder.accepted_steps(controller_state)
     batch, n_times = ts.shape
     rows = jnp.arange(batch)
     t0, t1 = ts[:, 0], ts[:, -1]
@@ -133,6 +142,14 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
         # the stage increments (of the last step tried)
         ks=stage_buffer(tableau, y),
     )
+    if recording:
+        carry["record"] = record
+
+    def full_state(c):
+        """The controller's state, its record of the steps put back."""
+        if recording:
+            return recorder.with_accepted_steps(c["controller_state"], c["record"])
+        return c["controller_state"]
 
     def unfinished(c):
         return (c["tprev"] < t1) & (c["result"] == SUCCESSFUL)
@@ -154,7 +171,7 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
     # again. A controller that never jumps (diffrax's `PIDController`) returns the
     # Python constant `False`: then the loop neither records jumps nor tests for
     # them at every step.
-    jax.eval_shape(adapt, arrays, t0, t0, y, y, y, controller_state)
+    jax.eval_shape(adapt, arrays, t0, t0, y, y, y, full_state(carry))
     track_jumps = fsal and any(jumps)
     if not track_jumps:
         carry["made_jump"] = None
@@ -180,8 +197,11 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
         )
         y_error = jax.tree.map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
         keep, tprev, tnext, made_jump, controller_state, result = adapt(
-            arrays, c["tprev"], c["tnext"], c["y"], y1, y_error, c["controller_state"]
+            arrays, c["tprev"], c["tnext"], c["y"], y1, y_error, full_state(c)
         )
+        if recording:
+            # (a finished sample writes its record past its last step: unread)
+            record, controller_state = recorder.accepted_steps(controller_state)
         tprev = jnp.minimum(tprev, t1)
         tnext = jnp.where(
             tnext > clip_floor, jnp.where(keep, t1, tprev + 0.5 * (t1 - tprev)), tnext
@@ -217,6 +237,8 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
         # the outputs are written only where a step was accepted; the stage
         # increments are those of the step just tried (written before read)
         written = outputs | dict(ks=ks)
+        if recording:
+            written["record"] = record
         frozen = {k: v for k, v in c.items() if k not in written}
         return _select(active, new, frozen) | written
 
@@ -228,9 +250,7 @@ def batch_solve(vector_field, solver, conditions, max_steps, static, arrays, axe
     saved_ys = jax.tree.map(
         lambda b, v: b.at[rows, slot].set(v, mode="drop"), c["saved_ys"], c["y"]
     )
-    return Outcome(
-        saved_ts, saved_ys, result, c["mask"], c["controller_state"], c["num_steps"]
-    )
+    return Outcome(saved_ts, saved_ys, result, c["mask"], full_state(c), c["num_steps"])
 
 
 def _interpolation(solver, dense) -> Callable:

@@ -119,20 +119,46 @@ def integrate(
         )
         return outcome, steps
 
-    def diffrax_solve(arrays):
-        if isinstance(adjoint, StepwiseAdjoint):
-            return stepwise_solve(
-                run, vector_field, solver, adjoint.layout(max_steps), static, arrays
-            )
-        return run(arrays)[0]
-
     batchable = (
-        batch_loop
-        and isinstance(solver, diffrax.AbstractERK)
+        isinstance(solver, diffrax.AbstractERK)
         and isinstance(solver.tableau, diffrax.ButcherTableau)
         and isinstance(progress_meter, diffrax.NoProgressMeter)
     )
-    if not batchable:
+
+    def run_batch(arrays, batched):
+        """`run(arrays, keep_steps=True)` of a batch (`batched`: whether each leaf
+        of `arrays` is), in the batch loop (for `StepwiseAdjoint` under `vmap`:
+        the loop writes the record of the steps in place, where `vmap` of
+        diffrax's loop copies it at each step)."""
+        assert isinstance(adjoint, StepwiseAdjoint)
+        setup = eqx.combine(arrays, static)
+        recorder = setup.controller.recording(adjoint.layout(max_steps))
+        recording = eqx.tree_at(lambda s: s.controller, setup, recorder)
+        # (the same leaves, under the recording controller's static fields)
+        arrays, recording_static = eqx.partition(recording, eqx.is_array)
+        axes = [0 if b else None for b in jax.tree.leaves(batched)]
+        axes = jax.tree.unflatten(jax.tree.structure(arrays), axes)
+        out = batch_solve(
+            vector_field, solver, conditions, max_steps, recording_static, arrays, axes
+        )
+        steps, state = recorder.accepted_steps(out.controller_state)
+        return eqx.tree_at(lambda o: o.controller_state, out, state), steps
+
+    def diffrax_solve(arrays):
+        if isinstance(adjoint, StepwiseAdjoint):
+            return stepwise_solve(
+                run,
+                vector_field,
+                solver,
+                adjoint.layout(max_steps),
+                static,
+                arrays,
+                run_batch if batchable else None,
+            )
+        return run(arrays)[0]
+
+    batchable_loop = batch_loop and batchable
+    if not batchable_loop:
         return diffrax_solve(arrays)
 
     batchable_solve = jax.custom_batching.custom_vmap(diffrax_solve)

@@ -2,12 +2,14 @@
 
 `StepwiseAdjoint` is the discrete adjoint of the solution the solver computed,
 written as a rule of `integrate` (`equinox.filter_custom_vjp`) instead of diffrax's
-differentiation of its whole loop. The forward run also keeps the start
-$(t_n, x_n)$ and the end time of every accepted step (`AcceptedSteps`, recorded by
-the step-size controller, an `AbstractStepRecorder`); the backward pass goes from
-the last step to the first and, for step $n$ with $h$ the step's length (usually
-$t_{n+1} - t_n$), replays its stages from $x_n$
-(stage inputs $X_i = x_n + \\sum_{j<i} a_{ij} K_j$, increments
+differentiation of its whole loop. The forward run also keeps the start time
+$t_n$ and the end time of every accepted step, and the start states $x_n$ of the
+first `kept_steps` steps, then of every 2nd, 4th, ... step (`StepLayout`;
+`AcceptedSteps`, recorded by the step-size controller, an `AbstractStepRecorder`).
+The backward pass goes from the last step to the first and, for step $n$ with
+$h$ the step's length (usually $t_{n+1} - t_n$), replays its stages from $x_n$
+(itself replayed from the last kept state before it where it was not kept; stage
+inputs $X_i = x_n + \\sum_{j<i} a_{ij} K_j$, increments
 $K_i = h\\,f(t_n + c_i h, X_i)$, so $x_{n+1} = x_n + \\sum_i b_i K_i$), then applies
 the recurrences of the Runge-Kutta adjoint,
 
@@ -45,6 +47,7 @@ starts just after it.
 
 import abc
 from collections.abc import Callable
+from functools import partial
 from typing import Any, NamedTuple
 
 import diffrax
@@ -62,8 +65,8 @@ class StepLayout(NamedTuple):
     """Where the record of a run's accepted steps keeps each step's start state.
 
     The first `kept` steps each have a slot; the next `2 kept` steps every second
-    one, the next `4 kept` every fourth, and so on: level $l \ge 0$ holds the
-    steps $n$ with $\text{kept}\,(2^l - 1) \le n < \text{kept}\,(2^{l+1} - 1)$
+    one, the next `4 kept` every fourth, and so on: level $l \\ge 0$ holds the
+    steps $n$ with $\\text{kept}\\,(2^l - 1) \\le n < \\text{kept}\\,(2^{l+1} - 1)$
     in `kept` slots, each step whose offset in its level is a multiple of $2^l$.
     `levels` levels hold `max_steps` steps (the times of every step are kept).
     A step without a slot writes the spare slot after the last (`spare`)."""
@@ -106,7 +109,9 @@ class StepLayout(NamedTuple):
         """The last step at or before step `n` with a slot, and that slot."""
         level, offset = self._level(n)
         back = jnp.bitwise_and(offset, jnp.left_shift(1, level) - 1)
-        return jnp.asarray(n, jnp.int32) - back, level * self.kept + jnp.right_shift(offset, level)
+        return jnp.asarray(n, jnp.int32) - back, level * self.kept + jnp.right_shift(
+            offset, level
+        )
 
 
 class AcceptedSteps(NamedTuple):
@@ -116,8 +121,8 @@ class AcceptedSteps(NamedTuple):
     `StepLayout` (a leading axis of `spare + 1` rows on each leaf)."""
 
     n_accepted: Int[Array, ""]
-    t_start: Float[Array, " max_steps"]
-    t_end: Float[Array, " max_steps"]
+    t_start: Float[Array, " rows"]
+    t_end: Float[Array, " rows"]
     y_start: PyTree[Array]
 
 
@@ -134,10 +139,19 @@ class AbstractStepRecorder(diffrax.AbstractAdaptiveStepSizeController):
     def recording(self, layout: StepLayout) -> "AbstractStepRecorder":
         """This controller, keeping the accepted steps in `layout`."""
 
+    @property
+    @abc.abstractmethod
+    def records(self) -> bool:
+        """Whether this controller keeps the accepted steps (a `recording`)."""
+
     @abc.abstractmethod
     def accepted_steps(self, state: Any) -> tuple[AcceptedSteps, Any]:
         """The steps a `recording` controller kept, from its final `state`, and
         that state as the controller would have ended it without recording."""
+
+    @abc.abstractmethod
+    def with_accepted_steps(self, state: Any, steps: AcceptedSteps | None) -> Any:
+        """`state`, without the steps (`accepted_steps`), with `steps` again."""
 
 
 class StepwiseAdjoint(eqx.Module):
@@ -164,13 +178,20 @@ class StepwiseAdjoint(eqx.Module):
       of the next `2 kept_steps`, every fourth of the next `4 kept_steps`, and so
       on up to `max_steps` (`StepLayout`); the backward pass replays the steps
       between two kept states from the earlier one (once more each, a run of
-      more than `kept_steps` steps only). That is $2\,\text{max\_steps} +
-      12(m + 1)\,\text{kept\_steps}\,L$ floats, with $L$ the levels it takes
-      ($\text{kept\_steps}\,(2^L - 1) \ge \text{max\_steps}$): 5.3 MB for three
+      more than `kept_steps` steps only). That is $2\\,\\text{max\\_steps} +
+      (12(m + 1) + 2)\\,\\text{kept\\_steps}\\,L$ floats, with $L$ the levels it takes
+      ($\\text{kept\\_steps}\\,(2^L - 1) \\ge \\text{max\\_steps}$): 5.3 MB for three
       bodies at the defaults (`max_steps=100_000`, `kept_steps=2048`, $L = 6$),
-      where keeping every step would take 32 MB, and fill it at each call (on
-      the default scenario, 1261 steps, the gradient took about 50 against 39
-      ms, `benchmarks/gradients.py`).
+      allocated and filled at each call. Keeping every step took 32 MB and made
+      the gradient of the default scenario (1261 steps) 4.8x its forward run,
+      against 3.8x now (`benchmarks/gradients.py`).
+    - Under `jax.vmap` (a batch of gradients), the forward half runs in the
+      batch loop of `simulate(..., batch_loop=True)`, which writes the record in
+      place (`vmap` of diffrax's loop would copy it at every step), and the
+      backward pass loops over blocks of steps. Its gradients then are those of
+      the batch loop's solution, within the solver's tolerance of each run's
+      alone.
+    - First derivatives only (as with diffrax's adjoint here).
     """
 
     kept_steps: int = eqx.field(default=2048, static=True)
@@ -247,11 +268,16 @@ def stepwise_solve(
     layout: StepLayout,
     static: Any,
     arrays: Any,
+    run_batch: Callable[[Any, Any], tuple[Any, AcceptedSteps]] | None = None,
 ) -> Any:
     """`run(arrays, keep_steps)[0]` (an `Outcome`), differentiated in reverse mode
     as the module's docstring says. `run` returns `(outcome, steps)`: with
     `keep_steps`, the run's `AcceptedSteps` (kept in `layout`), else `None`.
-    `arrays` and `static` are `integrate`'s `_Setup` split by `eqx.partition`."""
+    `arrays` and `static` are `integrate`'s `_Setup` split by `eqx.partition`.
+    `run_batch(arrays, batched)`, if given, is what `run(arrays, True)` becomes
+    under `jax.vmap` (`batched`: whether each leaf of `arrays` is batched): a batch
+    whose record of the steps is not copied at each step, as `vmap` of diffrax's
+    loop copies it (the batch loop, `_batch_loop.py`)."""
     tableau = solver.tableau
     assert isinstance(tableau, diffrax.ButcherTableau)  # (`check_solver`)
     b = np.asarray(tableau.b_sol, dtype=float)
@@ -263,67 +289,30 @@ def stepwise_solve(
     used = [b[i] != 0 or any(a[m - 1][i] != 0 for m in range(i + 1, stages))
             for i in range(stages)]  # fmt: skip
 
-    @eqx.filter_custom_vjp
-    def solve(arrays):
-        return run(arrays, False)[0]
-
-    @solve.def_fwd
-    def solve_fwd(perturbed, arrays):
-        outcome, steps = run(arrays, True)
-        return outcome, (outcome.ts, steps)
-
-    @solve.def_bwd
-    def solve_bwd(residuals, grad_outcome, perturbed, arrays):
-        _check_perturbed(perturbed)
-        out_ts, steps = residuals
-        t_start, t_end, y_start = steps.t_start, steps.t_end, steps.y_start
-        # products with respect to the perturbed arrays of `args` only
-        diff_args, other_args = eqx.partition(arrays.args, perturbed.args)
+    def backward(
+        nested,
+        t_start,
+        t_end,
+        y_start,
+        n,
+        where,
+        sums,
+        x_bar_end,
+        diff_args,
+        other_args,
+    ):
+        """The cotangents of the initial state and of `diff_args` from those
+        after the last step (`x_bar_end`) and the outputs' shares (`sums`, per
+        output, summed per step; `where`: each output's step). `nested`: a loop
+        over blocks of steps, each a loop over its steps (what `vmap` gets: in the
+        one loop over the steps, its test of whether to replay a block would
+        replay one at every step); else one loop over the steps, which is quicker
+        for one run (3.8x against 4.1x the forward run of the default scenario in
+        `benchmarks/gradients.py`)."""
+        zeros = jax.tree.map(jnp.zeros_like, diff_args)
 
         def f(t, x, d):
             return vector_field(t, x, eqx.combine(d, other_args, static.args))
-
-        ys_bar = grad_outcome.ys
-        if ys_bar is None:
-            ys_bar = jnp.zeros((out_ts.shape[0], *y_start.shape[1:]), y_start.dtype)
-        n = steps.n_accepted  # accepted steps
-        last = jnp.maximum(n - 1, 0)
-        # (padding past the last step: no output searches into it)
-        rows = jnp.arange(t_start.shape[0], dtype=jnp.int32)
-        t_start = jnp.where(rows < n, t_start, jnp.inf)
-
-        # The saves: the outputs the run reached, then its end state (diffrax fills
-        # the slots in order; the rest, inf, have no cotangent). The outputs'
-        # steps and interpolation weights:
-        end = jnp.maximum(jnp.sum(jnp.isfinite(out_ts), dtype=jnp.int32) - 1, 0)
-        reached = jnp.arange(out_ts.shape[0], dtype=jnp.int32) < end
-        tau = jnp.where(reached, out_ts, t_start[0])
-        tau_bar = jnp.where(reached[:, None], ys_bar, 0.0)
-        where = jnp.searchsorted(t_start, tau, side="left").astype(jnp.int32)
-        where = jnp.clip(where - 1, 0, last)
-        # (the end state and the slots after it come last: in the last step, with
-        # no weight)
-        where = jnp.where(reached, where, last)
-        weights = jax.vmap(
-            lambda t0, t1, t: _interpolation_weights(solver, t0, t1, t, stages)
-        )(t_start[where], t_end[where], tau)
-        weights = jnp.where(reached[:, None] & (n > 0), weights, 0.0)
-
-        # each output's share of the cotangents of (x_n, x_{n+1}, K_1 ... K_s) of
-        # its step, summed over each step's outputs (a range of them: a sum that
-        # starts again at each step's first output)
-        shares = weights[:, :, None] * tau_bar[:, None, :]
-        first = jnp.concatenate([jnp.array([True]), where[1:] != where[:-1]])
-
-        def add(left, right):
-            (first_left, sum_left), (first_right, sum_right) = left, right
-            restart = first_right[:, None, None]
-            return first_left | first_right, jnp.where(
-                restart, sum_right, sum_left + sum_right
-            )
-
-        _, sums = jax.lax.associative_scan(add, (first, shares))
-        zeros = jax.tree.map(jnp.zeros_like, diff_args)
 
         def replay_step(k, x):
             """The inputs $X_i$ of step `k`'s stages from its start state `x`, and
@@ -403,20 +392,20 @@ def stepwise_solve(
                 starts = jnp.where((ks < layout.kept)[:, None], starts, chained)
             return jax.vmap(lambda k, x: replay_step(k, x)[0])(ks, starts)
 
-        def body(carry):
-            k, x_bar, p_bar, block, top = carry
-            stale = k < top - _BLOCK + 1
-            top = jnp.where(stale, k, top)
-            block = jax.lax.cond(stale, replay, lambda top: block, top)
-            inputs = block[k - (top - _BLOCK + 1)]
+        def back_through(k, inputs, x_bar, p_bar):
+            """The cotangents before step `k` from those after it (unchanged if
+            `k < 0`), given its stage inputs."""
             # the outputs in this step: `lo <= j < hi` (in time order)
             lo = jnp.sum(where < k, dtype=jnp.int32)
             hi = jnp.sum(where <= k, dtype=jnp.int32)
             has_output = hi > lo
             share = jnp.where(has_output, sums[jnp.maximum(hi - 1, 0)], 0.0)
             # the step's own work in a branch on small arrays only (the module's
-            # docstring says why; its predicate always holds in the loop)
-            x_bar, p_bar = jax.lax.cond(
+            # docstring says why). (k < 0 in the last block of the loop over
+            # blocks, where the branch is not taken, or under `vmap` its results
+            # discarded: `t_start[k]` wraps around. Clipped, `max(k, 0)`, it made
+            # the backward pass of one run 3 ms slower, 31 against 28 ms.)
+            return jax.lax.cond(
                 k >= 0,
                 step_back,
                 lambda t0, t1, has_output, share, inputs, x_bar, p_bar: (x_bar, p_bar),
@@ -428,12 +417,117 @@ def stepwise_solve(
                 x_bar,
                 p_bar,
             )
+
+        def body(carry):
+            """One step back, replaying a block when the step leaves the last."""
+            k, x_bar, p_bar, block, top = carry
+            stale = k < top - _BLOCK + 1
+            top = jnp.where(stale, k, top)
+            block = jax.lax.cond(stale, replay, lambda top: block, top)
+            inputs = block[k - (top - _BLOCK + 1)]
+            x_bar, p_bar = back_through(k, inputs, x_bar, p_bar)
             return k - 1, x_bar, p_bar, block, top
 
-        _, x_bar, p_bar, _, _ = jax.lax.while_loop(
-            lambda carry: carry[0] >= 0,
-            body,
-            (n - 1, ys_bar[end], zeros, replay(n - 1), n - 1),
+        def block_back(carry):
+            """The `_BLOCK` steps back that end with step `top`."""
+
+            def step_of_block(j, carry):
+                top, block, x_bar, p_bar = carry
+                inputs = block[_BLOCK - 1 - j]
+                x_bar, p_bar = back_through(top - j, inputs, x_bar, p_bar)
+                return top, block, x_bar, p_bar
+
+            top, x_bar, p_bar = carry
+            _, _, x_bar, p_bar = jax.lax.fori_loop(
+                0, _BLOCK, step_of_block, (top, replay(top), x_bar, p_bar)
+            )
+            return top - _BLOCK, x_bar, p_bar
+
+        if nested:
+            # a loop over blocks, each a loop over its steps
+            _, x_bar, p_bar = jax.lax.while_loop(
+                lambda carry: carry[0] >= 0, block_back, (n - 1, x_bar_end, zeros)
+            )
+        else:
+            # one loop over the steps, replaying a block when it leaves the last
+            _, x_bar, p_bar, _, _ = jax.lax.while_loop(
+                lambda carry: carry[0] >= 0,
+                body,
+                (n - 1, x_bar_end, zeros, replay(n - 1), n - 1),
+            )
+        return x_bar, p_bar
+
+    @eqx.filter_custom_vjp
+    def solve(arrays):
+        return run(arrays, False)[0]
+
+    def record(arrays):
+        return run(arrays, True)
+
+    if run_batch is not None:
+        record = jax.custom_batching.custom_vmap(record)
+
+        @record.def_vmap
+        def _record_batch(axis_size, in_batched, arrays):
+            (batched,) = in_batched
+            out = run_batch(arrays, batched)
+            return out, jax.tree.map(lambda _: True, out)
+
+    @solve.def_fwd
+    def solve_fwd(perturbed, arrays):
+        outcome, steps = record(arrays)
+        return outcome, (outcome.ts, steps)
+
+    @solve.def_bwd
+    def solve_bwd(residuals, grad_outcome, perturbed, arrays):
+        _check_perturbed(perturbed)
+        out_ts, steps = residuals
+        t_start, t_end, y_start = steps.t_start, steps.t_end, steps.y_start
+        # products with respect to the perturbed arrays of `args` only
+        diff_args, other_args = eqx.partition(arrays.args, perturbed.args)
+
+        ys_bar = grad_outcome.ys
+        if ys_bar is None:
+            ys_bar = jnp.zeros((out_ts.shape[0], *y_start.shape[1:]), y_start.dtype)
+        n = steps.n_accepted  # accepted steps
+        last = jnp.maximum(n - 1, 0)
+        # (padding past the last step: no output searches into it)
+        rows = jnp.arange(t_start.shape[0], dtype=jnp.int32)
+        t_start = jnp.where(rows < n, t_start, jnp.inf)
+
+        # The saves: the outputs the run reached, then its end state (diffrax fills
+        # the slots in order; the rest, inf, have no cotangent). The outputs'
+        # steps and interpolation weights:
+        end = jnp.maximum(jnp.sum(jnp.isfinite(out_ts), dtype=jnp.int32) - 1, 0)
+        reached = jnp.arange(out_ts.shape[0], dtype=jnp.int32) < end
+        tau = jnp.where(reached, out_ts, t_start[0])
+        tau_bar = jnp.where(reached[:, None], ys_bar, 0.0)
+        where = jnp.searchsorted(t_start, tau, side="left").astype(jnp.int32)
+        where = jnp.clip(where - 1, 0, last)
+        # (the end state and the slots after it come last: in the last step, with
+        # no weight)
+        where = jnp.where(reached, where, last)
+        weights = jax.vmap(
+            lambda t0, t1, t: _interpolation_weights(solver, t0, t1, t, stages)
+        )(t_start[where], t_end[where], tau)
+        weights = jnp.where(reached[:, None] & (n > 0), weights, 0.0)
+
+        # each output's share of the cotangents of (x_n, x_{n+1}, K_1 ... K_s) of
+        # its step, summed over each step's outputs (a range of them: a sum that
+        # starts again at each step's first output)
+        shares = weights[:, :, None] * tau_bar[:, None, :]
+        first = jnp.concatenate([jnp.array([True]), where[1:] != where[:-1]])
+
+        def add(left, right):
+            (first_left, sum_left), (first_right, sum_right) = left, right
+            restart = first_right[:, None, None]
+            return first_left | first_right, jnp.where(
+                restart, sum_right, sum_left + sum_right
+            )
+
+        _, sums = jax.lax.associative_scan(add, (first, shares))
+        x_bar, p_bar = _vmap_as(partial(backward, False), partial(backward, True))(
+            t_start, t_end, y_start, n, where, sums, ys_bar[end], diff_args, other_args
         )
         # a run without a step: its outputs are x_0 itself
         x_bar = x_bar + jnp.where(n == 0, jnp.sum(tau_bar, axis=0), 0.0)
@@ -444,6 +538,21 @@ def stepwise_solve(
         )
 
     return solve(arrays)
+
+
+def _vmap_as(fn: Callable, batched_fn: Callable) -> Callable:
+    """`fn`, which under `jax.vmap` runs `jax.vmap(batched_fn)` instead (through
+    `jax.custom_batching.custom_vmap`, which tells the batch apart also inside a
+    function compiled before `vmap` reached it)."""
+    wrapped = jax.custom_batching.custom_vmap(fn)
+
+    @wrapped.def_vmap
+    def _batched(axis_size, in_batched, *args):
+        in_axes = tuple(jax.tree.map(lambda b: 0 if b else None, in_batched))
+        out = jax.vmap(batched_fn, in_axes=in_axes, axis_size=axis_size)(*args)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return wrapped
 
 
 def _is_none(value: Any) -> bool:
