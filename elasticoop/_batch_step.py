@@ -23,9 +23,14 @@ step to rounding (about one unit in the last place a stage), not bitwise.
 
 The stages run in a `lax.fori_loop` (one copy of the vector field in the compiled
 program: with six copies, one a stage, XLA compiled the vector field slower), over
-a buffer of the $k_j$ that the caller keeps from one step to the next (a term of a
-stage not yet evaluated in this step is masked, not multiplied by its zero
-coefficient, so a non-finite value left by an earlier step cannot leak in).
+a buffer of the $k_j$ that the caller keeps from one step to the next. Each stage's
+input sums only that stage's terms with a nonzero coefficient, in a branch of a
+`lax.switch` on the stage (so a value left in the buffer by an earlier step never
+enters). Before, every stage summed all the buffer's rows, masking those not yet
+of this step: Dopri8's 13 stages then took 169 terms a step where 91 are
+nonzero, and a Monte Carlo batch of it 1.58-1.77 against 1.34-1.35 ms per
+trajectory (`benchmarks/montecarlo.py`'s study at rtol 1e-9, 1024 samples, one
+device; Tsit5 within noise, 2.16-2.17 against 2.17-2.21 ms).
 """
 
 from collections.abc import Callable
@@ -105,7 +110,6 @@ def explicit_step(
     lower = np.zeros((n, n))
     for i, row in enumerate(tableau.a_lower):
         lower[i + 1, : i + 1] = row
-    a = jnp.asarray(lower, dtype)
     c = jnp.asarray(np.concatenate([[tableau.c1], tableau.c]), dtype)
     h = t1 - t0
 
@@ -116,13 +120,19 @@ def explicit_step(
             lambda b, v: jax.lax.dynamic_update_index_in_dim(b, v, i, 0), buffer, k
         )
 
+    def input_of(i, ks):
+        """$y_0 + \\sum_{j<i} a_{ij} k_j$ over the nonzero $a_{ij}$ only."""
+        row = lower[i, :i]
+        used = [j for j in range(i) if row[j] != 0]
+        if not used:
+            return y0
+        terms = _weighted(row[used])
+        rows = _rows(ks, n)
+        return jax.tree.map(jnp.add, y0, _weighted_sum(terms, [rows[j] for j in used]))
+
     def stage(i, carry):
         ks, _, _ = carry
-        # a_ij k_j; the terms j >= i (a_ij = 0) are not of this step yet: masked
-        terms = [
-            lambda k, j=j: jnp.where(j < i, a[i, j] * k, 0.0) for j in range(n - 1)
-        ]
-        yi = jax.tree.map(jnp.add, y0, _weighted_sum(terms, _rows(ks, n - 1)))
+        yi = jax.lax.switch(i, [lambda ks, i=i: input_of(i, ks) for i in range(n)], ks)
         ti = jnp.where(c[i] == 1, t1, t0 + c[i] * h)
         fi = field(ti, yi)
         # `yi` leaves the loop (the solution where b_j = a_sj): which also keeps
