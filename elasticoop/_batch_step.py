@@ -126,9 +126,8 @@ def explicit_step(
         used = [j for j in range(i) if row[j] != 0]
         if not used:
             return y0
-        terms = _weighted(row[used])
-        rows = _rows(ks, n)
-        return jax.tree.map(jnp.add, y0, _weighted_sum(terms, [rows[j] for j in used]))
+        rows = [jax.tree.map(lambda b, j=j: b[j], ks) for j in used]
+        return jax.tree.map(jnp.add, y0, _weighted_sum(_weighted(row[used]), rows))
 
     def stage(i, carry):
         ks, _, _ = carry

@@ -98,20 +98,17 @@ class StepLayout(NamedTuple):
             level = level + (n >= self.kept * (2**lvl - 1)).astype(jnp.int32)
         return level, n - self.kept * (jnp.left_shift(1, level) - 1)
 
-    def slot(self, n: Int[Array, ""]) -> Int[Array, ""]:
-        """The slot of step `n`'s start state (`spare` if it has none)."""
-        level, offset = self._level(n)
-        stored = jnp.bitwise_and(offset, jnp.left_shift(1, level) - 1) == 0
-        slot = level * self.kept + jnp.right_shift(offset, level)
-        return jnp.where(stored, slot, self.spare)
-
     def checkpoint(self, n: Int[Array, ""]) -> tuple[Array, Array]:
         """The last step at or before step `n` with a slot, and that slot."""
         level, offset = self._level(n)
         back = jnp.bitwise_and(offset, jnp.left_shift(1, level) - 1)
-        return jnp.asarray(n, jnp.int32) - back, level * self.kept + jnp.right_shift(
-            offset, level
-        )
+        slot = level * self.kept + jnp.right_shift(offset, level)
+        return jnp.asarray(n, jnp.int32) - back, slot
+
+    def slot(self, n: Int[Array, ""]) -> Int[Array, ""]:
+        """The slot of step `n`'s start state (`spare` if it has none)."""
+        start, slot = self.checkpoint(n)
+        return jnp.where(start == n, slot, self.spare)
 
 
 class AcceptedSteps(NamedTuple):
