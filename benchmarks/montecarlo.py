@@ -34,6 +34,7 @@ if "XLA_FLAGS" not in os.environ:
     )
 
 import argparse  # noqa: E402
+import itertools  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
@@ -102,7 +103,22 @@ def three_body_study(
     )
 
 
-def _memory_per_sample(study, batch_width, devices):
+_MEMORY_PER_SAMPLE: dict = {}
+
+
+def _memory_per_sample(study, batch_width, devices, config):
+    """XLA's memory analysis of the compiled batch, per sample; the batch's
+    program depends on the study's `config` (solver, tolerance) and the width,
+    not on its number of samples, so it is compiled once per configuration."""
+    key = (config, batch_width, len(devices))
+    if key not in _MEMORY_PER_SAMPLE:
+        _MEMORY_PER_SAMPLE[key] = _analysed_memory_per_sample(
+            study, batch_width, devices
+        )
+    return _MEMORY_PER_SAMPLE[key]
+
+
+def _analysed_memory_per_sample(study, batch_width, devices):
     mesh = Mesh(np.array(devices), ("samples",))
     shape = (len(devices), batch_width)
     index = _global_array(mesh, np.zeros(shape, np.int64))
@@ -121,14 +137,20 @@ def _memory_per_sample(study, batch_width, devices):
 
 
 def jax_throughput(
-    batch: int, repeats: int, solver: str = "tsit5", rtol: float = 1e-8
+    batch: int,
+    repeats: int,
+    solver: str = "tsit5",
+    rtol: float = 1e-8,
+    batch_width: int | None = None,
 ) -> dict:
     devices = jax.devices()
     n_dev = min(len(devices), batch)
     devices = devices[:n_dev]
     study = three_body_study(batch, solver, rtol)
-    # run_study's default width (128, or fewer when the batch does not fill the devices)
-    width = mc.default_batch_width(study, mc.memory_budget_for(devices), n_dev)
+    # run_study's default width unless given (`default_batch_width`)
+    width = batch_width or mc.default_batch_width(
+        study, mc.memory_budget_for(devices), n_dev, platform=devices[0].platform
+    )
     run = lambda: mc.run_study(  # noqa: E731
         study, chunk_size=batch, batch_width=width, devices=devices, progress=False
     )
@@ -155,7 +177,9 @@ def jax_throughput(
         "trajectories_per_s": batch / best,
         "simulated_s_per_wall_s": batch * T_END / best,
         "failed": summary["n_failed"],
-        "memory_per_sample_bytes_xla": _memory_per_sample(study, width, devices),
+        "memory_per_sample_bytes_xla": _memory_per_sample(
+            study, width, devices, (solver, rtol)
+        ),
         "memory_per_sample_bytes_estimate": working_memory_per_sample(study),
         "lanes": lanes,
     }
@@ -223,15 +247,27 @@ def accuracy() -> dict:
 CONFIGS = (("tsit5", 1e-8), ("dopri8", 1e-9))
 
 
-def run(quick: bool) -> dict:
-    batches = (1, 16, 64) if quick else (1, 16, 256, 4096)
+def run(
+    quick: bool,
+    batches: tuple[int, ...] | None = None,
+    batch_widths: tuple[int | None, ...] = (None,),
+) -> dict:
+    """Every configuration of `CONFIGS` at each of `batches` (default: the
+    standard sizes below) and each of `batch_widths` (None: `run_study`'s
+    default)."""
     repeats = 1 if quick else 2
     scipy = scipy_per_trajectory(2 if quick else 6)
-    runs = [(b, *CONFIGS[0]) for b in batches]
-    runs += [(b, *CONFIGS[1]) for b in ((16,) if quick else (256, 4096))]
+    if batches is None:
+        standard = (1, 16, 64) if quick else (1, 16, 256, 4096)
+        runs = [(b, *CONFIGS[0]) for b in standard]
+        runs += [(b, *CONFIGS[1]) for b in ((16,) if quick else (256, 4096))]
+    else:
+        runs = [(b, *config) for config in CONFIGS for b in batches]
     rows = []
-    for batch, solver, rtol in runs:
-        row = jax_throughput(batch, repeats, solver, rtol)
+    for (batch, solver, rtol), width in itertools.product(runs, batch_widths):
+        if width is not None and width * len(jax.devices()) > batch:
+            continue  # wider than the batch: the same as a smaller width
+        row = jax_throughput(batch, repeats, solver, rtol, width)
         loop_s = scipy["s_per_trajectory"] * batch
         row["scipy_loop_s_extrapolated"] = loop_s
         row["speedup_vs_scipy_loop"] = loop_s / row["run_s"]
@@ -243,7 +279,8 @@ def run(quick: bool) -> dict:
             "1e-8; 12 log-normal stiffness scalars; reductions kept"
         ),
         "max_error_nominal": accuracy(),
-        "device": f"{jax.devices()[0].platform} x {len(jax.devices())} "
+        "device": f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind}) "
+        f"x {len(jax.devices())} "
         f"({platform.processor() or platform.machine()}, {os.cpu_count()} cores)",
         "scipy": scipy,
         "rows": rows,
@@ -254,8 +291,18 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--json", type=Path)
+    parser.add_argument(
+        "--batches", type=int, nargs="+", help="batch sizes (default: the standard)"
+    )
+    parser.add_argument(
+        "--batch-widths",
+        type=int,
+        nargs="+",
+        help="samples per device at once (default: run_study's default)",
+    )
     args = parser.parse_args()
-    result = run(args.quick)
+    widths = tuple(args.batch_widths) if args.batch_widths else (None,)
+    result = run(args.quick, tuple(args.batches) if args.batches else None, widths)
     print(result["problem"])
     print("device:", result["device"])
     print(
@@ -266,7 +313,8 @@ def main():
     )
     print("max error, nominal model:", result["max_error_nominal"])
     header = (
-        f"{'solver':>7} {'rtol':>6} {'batch':>6} {'dev':>4} {'compile s':>10} "
+        f"{'solver':>7} {'rtol':>6} {'batch':>6} {'dev':>4} {'width':>6} "
+        f"{'compile s':>10} "
         f"{'run s':>8} {'traj/s':>9} "
         f"{'sim-s/s':>9} {'loop s':>9} {'speedup':>8} {'MB/sample':>10}"
     )
@@ -275,6 +323,7 @@ def main():
         mem = r["memory_per_sample_bytes_xla"]
         print(
             f"{r['solver']:>7} {r['rtol']:>6.0e} {r['batch']:>6} {r['devices']:>4} "
+            f"{r['batch_width']:>6} "
             f"{r['compile_and_first_run_s']:>10.2f} "
             f"{r['run_s']:>8.3f} {r['trajectories_per_s']:>9.1f} "
             f"{r['simulated_s_per_wall_s']:>9.1f} "

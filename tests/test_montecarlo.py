@@ -2,6 +2,7 @@
 store, failures and sensitivities."""
 
 import json
+import re
 
 import equinox as eqx
 import jax
@@ -529,6 +530,30 @@ def test_default_batch_width_fills_the_devices_and_fits_the_memory_budget(study)
             with pytest.raises(ValueError, match="memory_budget"):
                 mc.chunk_size_for(study, budget, wider, devices)
     assert mc.default_batch_width(study, 10) == 1
+
+
+def test_default_batch_width_on_gpus_takes_the_whole_chunk_up_to_its_cap():
+    # on a device that is not a CPU a batch is as wide as the samples each device
+    # gets, up to ACCELERATOR_BATCH_WIDTH, and as the memory budget allows
+    many = _study(n_samples=2 * mc.DEFAULT_BATCH_WIDTH + 88)
+    n = many.n_samples
+    assert mc.default_batch_width(many, 2**34, platform="gpu") == n
+    assert mc.default_batch_width(many, 2**34, 3, platform="gpu") == -(-n // 3)
+    assert mc.default_batch_width(many, 2**34, chunk_size=100, platform="gpu") == 100
+    huge = _study(n_samples=2 * mc.ACCELERATOR_BATCH_WIDTH + 1)
+    assert mc.default_batch_width(huge, 2**40, platform="gpu") == (
+        mc.ACCELERATOR_BATCH_WIDTH
+    )
+    assert mc.default_batch_width(huge, 2**40) == mc.DEFAULT_BATCH_WIDTH  # CPUs
+    # a budget of a third of what the whole chunk needs in one batch
+    with pytest.raises(ValueError, match="needs about") as info:
+        mc.chunk_size_for(many, 1, n)
+    budget = int(re.search(r"needs about (\d+)", str(info.value)).group(1)) // 3
+    width = mc.default_batch_width(many, budget, platform="gpu")
+    assert width in [n >> k for k in range(2, n.bit_length())]
+    mc.chunk_size_for(many, budget, width)  # fits, twice as wide does not
+    with pytest.raises(ValueError, match="memory_budget"):
+        mc.chunk_size_for(many, budget, 2 * width)
 
 
 class _Device:

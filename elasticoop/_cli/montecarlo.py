@@ -14,7 +14,7 @@ from .._io.strict_json import strict_json
 from .._io.study_summary import format_study_report, output_names, study_report
 from ..montecarlo import StoreError, StoreLockedError, open_study, run_study
 from ..montecarlo.distributed import is_first_process
-from ..montecarlo.execution import DEFAULT_BATCH_WIDTH
+from ..montecarlo.execution import ACCELERATOR_BATCH_WIDTH, DEFAULT_BATCH_WIDTH
 from ._common import EXIT_OK, UserError, common_options, positive_int, say
 
 NAME = "montecarlo"
@@ -70,8 +70,9 @@ def register(subparsers) -> None:
         type=positive_int,
         metavar="N",
         help=f"samples integrated together per device (default {DEFAULT_BATCH_WIDTH}"
-        ", or fewer when the samples do not fill every device, halved until a batch "
-        "fits the memory budget; a resumed store keeps its own)",
+        f" on CPUs, {ACCELERATOR_BATCH_WIDTH} on GPUs, or fewer when the samples do "
+        "not fill every device, halved until a batch fits the memory budget; a "
+        "resumed store keeps its own)",
     )
     distributed = parser.add_argument_group(
         "several processes (jax.distributed; every process runs the same command, "

@@ -11,6 +11,7 @@ from .distributions import (
     Uniform as Uniform,
 )
 from .execution import (
+    ACCELERATOR_BATCH_WIDTH as ACCELERATOR_BATCH_WIDTH,
     DEFAULT_BATCH_WIDTH as DEFAULT_BATCH_WIDTH,
     INVALID_SAMPLE as INVALID_SAMPLE,
     chunk_size_for as chunk_size_for,
