@@ -107,10 +107,10 @@ _MEMORY_PER_SAMPLE: dict = {}
 
 
 def _memory_per_sample(study, batch_width, devices, config):
-    """XLA's memory analysis of the compiled batch, per sample; the batch's
-    program depends on the study's `config` (solver, tolerance) and the width,
-    not on its number of samples, so it is compiled once per configuration."""
-    key = (config, batch_width, len(devices))
+    """XLA's memory analysis of the compiled chunk (the whole study), per
+    sample; compiled once per configuration (`config`: solver, tolerance),
+    number of samples, width and devices."""
+    key = (config, study.n_samples, batch_width, len(devices))
     if key not in _MEMORY_PER_SAMPLE:
         _MEMORY_PER_SAMPLE[key] = _analysed_memory_per_sample(
             study, batch_width, devices
@@ -120,11 +120,14 @@ def _memory_per_sample(study, batch_width, devices, config):
 
 def _analysed_memory_per_sample(study, batch_width, devices):
     mesh = Mesh(np.array(devices), ("samples",))
-    shape = (len(devices), batch_width)
+    shape = (len(devices), -(-study.n_samples // len(devices)))
     index = _global_array(mesh, np.zeros(shape, np.int64))
     strata = _global_array(mesh, np.zeros((*shape, 0), np.int32))
-    # the batch exactly as `run_study` compiles it (the study replicated on the mesh)
-    lowered = _run_batch.lower(_replicated(mesh, study), mesh, index, strata)
+    started = _global_array(mesh, np.ones(shape, bool))
+    # the chunk exactly as `run_study` compiles it (the study replicated on the mesh)
+    lowered = _run_batch.lower(
+        _replicated(mesh, study), mesh, index, strata, started, batch_width
+    )
     stats = lowered.compile().compiled.memory_analysis()
     if stats is None:
         return None
@@ -133,7 +136,7 @@ def _analysed_memory_per_sample(study, batch_width, devices):
         + stats.output_size_in_bytes
         + stats.temp_size_in_bytes
     )
-    return total / (batch_width * len(devices))
+    return total / (shape[0] * shape[1])
 
 
 def jax_throughput(

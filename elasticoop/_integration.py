@@ -57,13 +57,14 @@ def integrate(
         diffrax.RecursiveCheckpointAdjoint()
     ),
     progress_meter: diffrax.AbstractProgressMeter = diffrax.NoProgressMeter(),
-    batch_loop: bool = False,
+    batch_loop: bool | int = False,
 ) -> Outcome:
     """Integrate $dy/dt = $ `vector_field(t, y, args)` from `ts[0]` to `ts[-1]`,
     saving at `ts` and at the end, stopping where one of `conditions` (functions of
     $t$, $y$, `args`) falls from positive to non-positive (at the end of that
     step). `batch_loop`: under `jax.vmap`, one loop for the batch (see the module's
-    docstring)."""
+    docstring); an integer: at most that many samples at once, the others each
+    starting as one stops."""
     if isinstance(adjoint, StepwiseAdjoint):
         check_solver(solver)
         if not isinstance(controller, AbstractStepRecorder):
@@ -157,7 +158,8 @@ def integrate(
             )
         return run(arrays)[0]
 
-    batchable_loop = batch_loop and batchable
+    batchable_loop = bool(batch_loop) and batchable
+    lanes = None if isinstance(batch_loop, bool) else int(batch_loop)
     if not batchable_loop:
         return diffrax_solve(arrays)
 
@@ -168,7 +170,7 @@ def integrate(
         (batched,) = in_batched
         axes = jax.tree.map(lambda b: 0 if b else None, batched)
         out = batch_solve(
-            vector_field, solver, conditions, max_steps, static, arrays, axes
+            vector_field, solver, conditions, max_steps, static, arrays, axes, lanes
         )
         return out, jax.tree.map(lambda _: True, out)
 

@@ -1,5 +1,6 @@
 """`simulate`: a thin layer over `diffrax.diffeqsolve`."""
 
+import numbers
 from collections.abc import Callable
 from functools import partial
 
@@ -86,7 +87,7 @@ def simulate(
     link_tol: float = LINK_TOL,
     prescribed: Validated[PrescribedMotion | None] = None,
     progress_meter: diffrax.AbstractProgressMeter | None = None,
-    batch_loop: bool = False,
+    batch_loop: bool | int = False,
 ) -> Trajectory:
     """Integrate $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$ from `ts[0]` to `ts[-1]`.
 
@@ -128,6 +129,12 @@ def simulate(
       to diffrax's to rounding (results within the solver's tolerance of it), but not
       differentiable (forward or reverse). Explicit Runge-Kutta
       solvers without a progress meter; otherwise ignored. `run_study` uses it.
+      An integer $n \\geq 1$ is the same loop over at most $n$ elements at once:
+      when one stops, the next one still waiting starts in its place, so that a
+      batch much wider than $n$ never waits for its slowest elements with most of
+      its places idle (`run_study` runs each chunk so, with $n$ = `batch_width`).
+      Each element's results do not depend on $n$ and equal those of
+      `batch_loop=True` to rounding.
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces (`event_time`, where a run stopped
@@ -143,6 +150,12 @@ def simulate(
     if not isinstance(model, AbstractElasticModel):
         raise ValueError(
             f"model must be an ImmobileModel or MobileModel, got {type(model).__name__}"
+        )
+    if not isinstance(batch_loop, bool) and (
+        not isinstance(batch_loop, numbers.Integral) or batch_loop < 1
+    ):
+        raise ValueError(
+            f"batch_loop must be True, False or a positive integer, got {batch_loop!r}"
         )
     options = SimulationOptions(
         "tsit5" if solver is None else solver,
@@ -350,7 +363,7 @@ def _solve(
     link_tol: float,
     prescribed: PrescribedMotion | None,
     progress_meter: diffrax.AbstractProgressMeter,
-    batch_loop: bool = False,
+    batch_loop: bool | int = False,
 ) -> Trajectory:
     # Starts that are not simulated (only possible when traced; concrete ones are
     # refused by `simulate`): NaN or inf in the initial state, a start at the

@@ -94,6 +94,32 @@ def test_batch_equals_vmap_of_single_runs_with_failing_elements():
     assert int(loop.n_steps[0]) < int(loop.n_steps[1]) == 200
 
 
+def test_a_few_lanes_at_a_time_equal_the_whole_batch_at_once():
+    # batch_loop=n: n elements at once, each next one starting as one stops; the
+    # batch of the test above (failures, max_steps) twice over, in 2 and 3 lanes
+    scale = jnp.array([1.0, 30.0, 1.0, 1.0, 0.5] * 2)[:, None, None] * MODEL.stiffness
+    forces = jnp.stack([LIFT, LIFT, LIFT.at[0, 2].set(jnp.nan), LIFT, 0.5 * LIFT] * 2)
+    starts = jnp.stack([Y0, Y0, Y0, Y0.at[1, 4].set(jnp.nan), Y0] * 2)
+
+    def batch(lanes):
+        run = lambda *a: _two_body(*a, batch_loop=lanes)  # noqa: E731
+        return jax.vmap(run)(scale, forces, starts)
+
+    whole, two, three = batch(True), batch(2), batch(3)
+    nonfinite, most = eo.Status.NONFINITE, eo.Status.MAX_STEPS_REACHED
+    np.testing.assert_array_equal(two.status, [0, most, nonfinite, nonfinite, 0] * 2)
+    _assert_same(whole, two, **TIGHT)
+    # how many lanes, and which lane an element ran in, changes nothing
+    for a, b in zip(jax.tree.leaves(two), jax.tree.leaves(three), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("lanes", [0, -2])
+def test_batch_loop_takes_a_bool_or_a_positive_integer(lanes):
+    with pytest.raises(ValueError, match="batch_loop must be"):
+        _two_body(MODEL.stiffness, LIFT, Y0, batch_loop=lanes)
+
+
 def test_outside_vmap_it_is_the_plain_run_and_not_differentiable():
     def final_height(stiffness, batch_loop):
         traj = _two_body(MODEL.stiffness * stiffness, LIFT, Y0, batch_loop=batch_loop)
@@ -121,6 +147,9 @@ def test_sampled_forces_with_jumps_and_ends_before_the_run():
     outside = eo.Status.OUTSIDE_FORCE_SAMPLES
     np.testing.assert_array_equal(plain.status, [0, outside, 0])
     _assert_same(plain, loop)
+    # two at a time: the third starts (its first stage evaluated) where one stops
+    queued = jax.vmap(lambda *a: run(*a, batch_loop=2))(ends, lifts)
+    _assert_same(plain, queued)
 
 
 @pytest.mark.slow

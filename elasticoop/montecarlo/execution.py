@@ -1,15 +1,16 @@
 """Chunked, batched, sharded execution of a study.
 
 The samples are cut into chunks of `chunk_size` (chosen from a memory budget), the
-unit of storage and of resumption. A chunk runs as batches of
-`batch_width x devices` samples: each batch is one array of sample numbers, split
+unit of storage and of resumption. A chunk is one array of sample numbers, split
 over every device of every process (a one-axis `Mesh`, `jax.shard_map`), and each
-device integrates its `batch_width` samples at once, in one loop of its own
-(`jax.vmap` of `simulate(..., batch_loop=True)`). One compiled
-function serves every chunk size, and every study of the same structure (the
-study's arrays are traced, see `Study`). A sample's result depends only on the
-study, its number and `batch_width`: not on the chunk size, its position in the
-chunk, its neighbours, the number of devices or of processes (bit for bit).
+device integrates its part `batch_width` samples at a time, in one loop of its own
+in which each waiting sample starts as soon as one stops (`jax.vmap` of
+`simulate(..., batch_loop=batch_width)`). Every chunk has the length of the first
+(the last one is padded with samples that stop at their first step), so one
+compilation serves a whole study, and every study of the same structure and chunk
+size (the study's arrays are traced, see `Study`). A sample's result depends only
+on the study, its number and `batch_width`: not on the chunk size, its position in
+the chunk, its neighbours, the number of devices or of processes (bit for bit).
 """
 
 import contextlib
@@ -73,6 +74,10 @@ DEVICE_MEMORY_SHARE = 0.5
 # benchmarks/montecarlo.py.
 _WORK_FACTOR = 6
 _WORK_FIXED = 64 * 1024
+# Memory of each sample of a chunk while the chunk runs, in units of its
+# Trajectory's size: its outputs, kept from when it stops until the chunk ends, and
+# its Trajectory when its outputs are reduced.
+_CHUNK_FACTOR = 2
 # At most this many batches of lanes in a chunk, so the progress bar moves and a
 # killed run loses little.
 _MAX_BATCHES_PER_CHUNK = 64
@@ -80,26 +85,31 @@ _MAX_BATCHES_PER_CHUNK = 64
 
 @fast_compile_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
-def _run_batch(study: Study, mesh: Mesh, index, strata):
+def _run_batch(study: Study, mesh: Mesh, index, strata, started, batch_width: int):
     # The study's arrays are traced and its structure static, so one compilation
-    # serves every study of the same structure. `index` has shape
-    # (devices, batch_width), axis 0 split over the mesh: each device integrates
-    # its `batch_width` samples at once, in its own loop (`shard_map` of a `vmap`
-    # of `simulate(..., batch_loop=True)`), not waiting for the other devices.
+    # serves every study of the same structure and chunk size. `index` has shape
+    # (devices, samples a device), axis 0 split over the mesh: each device
+    # integrates its samples `batch_width` at a time, in its own loop, each waiting
+    # sample starting as one stops (`shard_map` of a `vmap` of
+    # `simulate(..., batch_loop=batch_width)`), not waiting for the other devices.
+    # Where `started` is false (the padding of a last chunk) the sample stops at
+    # its first step.
     arrays, static = eqx.partition(study, eqx.is_array)
 
-    def on_device(arrays, index, strata):
-        sample = partial(one_sample, eqx.combine(arrays, static), batch_loop=True)
-        records = jax.vmap(sample)(index[0], strata[0])
+    def on_device(arrays, index, strata, started):
+        sample = partial(
+            one_sample, eqx.combine(arrays, static), batch_loop=batch_width
+        )
+        records = jax.vmap(sample)(index[0], strata[0], started[0])
         return jax.tree.map(lambda x: x[None], records)
 
     return jax.shard_map(
         on_device,
         mesh=mesh,
-        in_specs=(P(), P("samples"), P("samples")),
+        in_specs=(P(), P("samples"), P("samples"), P("samples")),
         out_specs=P("samples"),
         check_vma=False,
-    )(arrays, index, strata)
+    )(arrays, index, strata, started)
 
 
 def _template(study: Study) -> dict:
@@ -130,8 +140,12 @@ def working_memory_per_sample(study: Study) -> int:
     """Estimated bytes one sample needs while it is integrated: `_WORK_FACTOR`
     times its trajectory ($Y$ and $\\dot Y$ at the output times) plus
     `_WORK_FIXED`."""
-    trajectory = 2 * len(study.ts) * study.inputs.model.n_bodies * 6 * 8
-    return _WORK_FACTOR * trajectory + _WORK_FIXED
+    return _WORK_FACTOR * _trajectory_bytes(study) + _WORK_FIXED
+
+
+def _trajectory_bytes(study: Study) -> int:
+    """Bytes of $Y$ and $\\dot Y$ at the study's output times."""
+    return 2 * len(study.ts) * study.inputs.model.n_bodies * 6 * 8
 
 
 def memory_budget_for(devices) -> int:
@@ -162,10 +176,11 @@ def chunk_size_for(
     memory fits in `memory_budget` bytes.
 
     Per chunk: `batch_width * n_devices` samples in flight, each needing about
-    `_WORK_FACTOR` times its trajectory plus `_WORK_FIXED` bytes, and every sample's
-    record held three times (device result, host copy, file buffer).
+    `_WORK_FACTOR` times its trajectory plus `_WORK_FIXED` bytes, and every
+    sample's record held three times (device result, host copy, file buffer) and
+    `_CHUNK_FACTOR` times its trajectory.
     """
-    record = _record_bytes(study)
+    record = 3 * _record_bytes(study) + _CHUNK_FACTOR * _trajectory_bytes(study)
     lanes = batch_width * n_devices
     in_flight = lanes * working_memory_per_sample(study)
     needed = _batch_bytes(study, lanes)
@@ -176,7 +191,7 @@ def chunk_size_for(
             f"{needed} bytes; raise memory_budget, or lower "
             f"batch_width or the number of output times"
         )
-    batches = (memory_budget - in_flight) // (3 * lanes * record)
+    batches = (memory_budget - in_flight) // (lanes * record)
     batches = min(batches, _MAX_BATCHES_PER_CHUNK, math.ceil(study.n_samples / lanes))
     return int(batches * lanes)
 
@@ -216,7 +231,11 @@ def _record_bytes(study: Study) -> int:
 def _batch_bytes(study: Study, lanes: int) -> int:
     """Memory of one batch of `lanes` samples in flight: each sample's working
     memory and its record held three times (see `chunk_size_for`)."""
-    return lanes * (working_memory_per_sample(study) + 3 * _record_bytes(study))
+    return lanes * (
+        working_memory_per_sample(study)
+        + 3 * _record_bytes(study)
+        + _CHUNK_FACTOR * _trajectory_bytes(study)
+    )
 
 
 def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
@@ -291,8 +310,9 @@ def run_study(
       first.
     - `chunk_size`: samples per chunk (default: from `memory_budget`; a resumed
       store keeps its own).
-    - `batch_width`: samples integrated together by `vmap` on each device. Results
-      depend on it at the level of floating-point rounding, so it is recorded, and
+    - `batch_width`: samples integrated together by `vmap` on each device (as one
+      stops, the next starts in its place). Results may depend on it at the
+      level of floating-point rounding, so it is recorded, and
       a resumed store keeps its own. Default: `DEFAULT_BATCH_WIDTH` (128) on
       CPUs, `ACCELERATOR_BATCH_WIDTH` (131072) on GPUs, or fewer when the samples
       (or `chunk_size`) do not fill every device, halved until one batch fits
@@ -444,7 +464,6 @@ def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[
     chunk_size, n_chunks = manifest["chunk_size"], manifest["n_chunks"]
     batch_width = manifest["batch_width"]
     n_devices = mesh.devices.size
-    lanes = batch_width * n_devices
     strata = lhs_strata(study)
     traced = _replicated(mesh, study)
     in_memory = []
@@ -468,18 +487,22 @@ def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[
                 continue
             start = chunk * chunk_size
             stop = min(start + chunk_size, study.n_samples)
-            padded = math.ceil((stop - start) / lanes) * lanes
-            index = np.minimum(np.arange(start, start + padded), stop - 1)
+            # every chunk as long as the first (one compilation), the padding of
+            # the last one stopped at once
+            padded = math.ceil(min(chunk_size, study.n_samples) / n_devices) * n_devices
+            numbers = np.arange(start, start + padded)
+            index = np.minimum(numbers, stop - 1)
             launches = [
                 _run_batch(
                     traced,
                     mesh,
-                    _global_array(mesh, part.reshape(n_devices, batch_width)),
+                    _global_array(mesh, index.reshape(n_devices, -1)),
                     _global_array(
-                        mesh, strata[part].reshape(n_devices, batch_width, -1)
+                        mesh, strata[index].reshape(n_devices, padded // n_devices, -1)
                     ),
+                    _global_array(mesh, (numbers < stop).reshape(n_devices, -1)),
+                    batch_width,
                 )
-                for part in index.reshape(-1, lanes)
             ]
             record = gather(launches)
             record = {

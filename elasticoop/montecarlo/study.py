@@ -473,7 +473,9 @@ class _Marker:
     """A leaf that marks the one a parameter selects."""
 
 
-def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dict:
+def one_sample(
+    study: Study, index, strata_row, started=True, batch_loop: bool | int = False
+) -> dict:
     """Draw, simulate and reduce sample `index`: its record (sample number,
     status, event time, parameter values, outputs). A sample whose draws are not
     finite, or give a model or force that no constructor would accept (a mass, a
@@ -481,7 +483,9 @@ def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dic
     out of range, a lift of no duration: `AbstractElasticModel.admissible`,
     `force_admissible`), is simulated at the nominal values
     and reported as `INVALID_SAMPLE`, with the values drawn. `batch_loop`: passed to
-    `simulate` (a `vmap` over samples integrates them in one loop)."""
+    `simulate` (a `vmap` over samples integrates them in one loop). Where
+    `started` is false the sample is not simulated: its start is made NaN, so the
+    solve stops at its first step (the padding of a batch)."""
     raw = draw(study, index, strata_row)
     valid = jnp.array(True)
     for value in raw.values():
@@ -496,6 +500,9 @@ def one_sample(study: Study, index, strata_row, batch_loop: bool = False) -> dic
         inputs = p.apply(inputs, jnp.where(valid, raw[p.name], fallback))
     # the values drawn (those simulated where valid)
     values = {p.name: p.nominal(drawn) for p in study.parameters}
+    inputs = eqx.tree_at(
+        lambda i: i.y_init, inputs, jnp.where(started, inputs.y_init, jnp.nan)
+    )
     traj = study.simulate(inputs, batch_loop=batch_loop)
     outputs = {
         name: jnp.where(valid, out(traj), jnp.nan)
