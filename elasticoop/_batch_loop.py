@@ -80,24 +80,25 @@ def _set_row(tree: PyTree, i, value: PyTree) -> PyTree:
     return jax.tree.map(lambda x, v: x.at[i].set(v), tree, value)
 
 
-def _batched_rows(arrays: PyTree, axes: PyTree, fn: Callable, *more) -> PyTree:
-    """`arrays` with `fn(leaf, *more's leaves)` in place of each batched leaf (axis
-    0 in `axes`, a tree of 0 or None over the leaves of `arrays`)."""
+def _leaf_axes(arrays: PyTree, axes: PyTree) -> list:
+    """The axis (0 or None) of each leaf of `arrays`, from `axes` (a tree of 0 or
+    None over the leaves of `arrays`)."""
     treedef = jax.tree.structure(arrays)
-    others = [treedef.flatten_up_to(tree) for tree in more]
+    return treedef.flatten_up_to(axes)  # type: ignore[attr-defined]
+
+
+def _batched_rows(arrays: PyTree, axes: PyTree, fn: Callable) -> PyTree:
+    """`arrays` with `fn(leaf)` in place of each batched leaf (axis 0 in `axes`)."""
     leaves = [
-        x if a is None else fn(x, *(o[i] for o in others))
-        for i, (x, a) in enumerate(
-            zip(jax.tree.leaves(arrays), treedef.flatten_up_to(axes), strict=True)
-        )
+        x if a is None else fn(x)
+        for x, a in zip(jax.tree.leaves(arrays), _leaf_axes(arrays, axes), strict=True)
     ]
-    return jax.tree.unflatten(treedef, leaves)
+    return jax.tree.unflatten(jax.tree.structure(arrays), leaves)
 
 
 def _batch_size(arrays: PyTree, axes: PyTree) -> int:
     """The length of the batched leaves of `arrays` (axis 0 in `axes`)."""
-    treedef = jax.tree.structure(arrays)
-    for x, a in zip(jax.tree.leaves(arrays), treedef.flatten_up_to(axes), strict=True):
+    for x, a in zip(jax.tree.leaves(arrays), _leaf_axes(arrays, axes), strict=True):
         if a is not None:
             return x.shape[0]
     raise ValueError("a batch needs at least one batched array")
@@ -221,8 +222,9 @@ def batch_solve(
     setup = dict(ts=ts, clip_floor=clip_floor, t1=t1, arrays=arrays)
     carry = dict(start)
     # the batched arrays of the setup, and the others (the same for every sample)
-    treedef = jax.tree.structure(arrays)
-    spec = treedef.unflatten([a is not None for a in treedef.flatten_up_to(axes)])
+    spec = jax.tree.unflatten(
+        jax.tree.structure(arrays), [a is not None for a in _leaf_axes(arrays, axes)]
+    )
     batched, shared = eqx.partition(arrays, spec)
     if queued:
         # The lanes start with the first `lanes` samples; `sample`: the sample in
