@@ -4,17 +4,18 @@
 
 Problem: the 3-body MobileModel (object + 2 grasps, 2 connections), 2 s simulated,
 Tsit5 at rtol 1e-8, atol 1e-10 (SciPy's tolerances), and Dopri8 at rtol 1e-9, atol
-1e-11 (at batch 256 and 4096; its error at rtol 1e-8 is about 2.6x SciPy's, at
+1e-11 (at batch 256, 1024 and 4096; its error at rtol 1e-8 is about 2.6x SciPy's, at
 1e-9 below it: `max_error_nominal`), grasp stiffness log-normal (12 scalars, 20 %
 scatter), constant lift; kept per sample: peak elastic force per connection and
 final object pose error (21 output times). For each batch size B the study has B
 samples, one chunk, integrated `run_study`'s default width (`default_batch_width`:
-128, or `B / devices` when fewer) at a time on each device (`vmap`; the host's cores are
+128 on a CPU, up to 131072 on a GPU, or `B / devices` when fewer) at a time on
+each device (`vmap`; each waiting sample starts as one stops; the host's cores are
 exposed as devices, so both cores of a 2-core machine work).
 
 Reported per B: trajectories per wall-second and simulated seconds per wall-second
 (after compilation, best of `repeats`), the compile time, and memory per sample
-(XLA's memory analysis of the compiled batch: arguments + outputs + temporaries,
+(XLA's memory analysis of the compiled chunk: arguments + outputs + temporaries,
 divided by B; and the `chunk_size_for` estimate). Side by side, the same samples
 integrated one by one by `scipy.integrate.solve_ivp` (DOP853, about 2.3x faster
 than RK45 on this problem; same tolerances) over
@@ -261,9 +262,9 @@ def run(
     repeats = 1 if quick else 2
     scipy = scipy_per_trajectory(2 if quick else 6)
     if batches is None:
-        standard = (1, 16, 64) if quick else (1, 16, 256, 4096)
+        standard = (1, 16, 64) if quick else (1, 16, 256, 1024, 4096)
         runs = [(b, *CONFIGS[0]) for b in standard]
-        runs += [(b, *CONFIGS[1]) for b in ((16,) if quick else (256, 4096))]
+        runs += [(b, *CONFIGS[1]) for b in ((16,) if quick else (256, 1024, 4096))]
     else:
         runs = [(b, *config) for config in CONFIGS for b in batches]
     rows = []

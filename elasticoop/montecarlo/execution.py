@@ -53,8 +53,11 @@ DEFAULT_BATCH_WIDTH = 128
 batch fits the memory budget: `default_batch_width`). Among the fastest widths on
 the 2-core CPU (one XLA device per core) for the 3-body study of
 `benchmarks/montecarlo.py`, 1024 samples: 1.76-1.78 ms per sample at 128, 1.70-1.81
-at 64, 1.95-2.00 at 256, 2.08 at 512 (a batch runs until its slowest sample is
-done, and a wider one leaves the caches)."""
+at 64, 1.95-2.00 at 256, 2.08 at 512 (a wider batch leaves the caches), measured
+when a batch still ran until its slowest sample was done. With each waiting
+sample starting as one stops, 128 and 64 stayed within noise of each other (on
+one core of the 2-core AMD EPYC, Dopri8 at rtol 1e-9: 1.30-1.31 against
+1.27-1.30 ms)."""
 ACCELERATOR_BATCH_WIDTH = 2**17
 """The same on GPUs (and any device that is not a CPU): there a batch's steps cost
 about the same at any width up to the device's size, so the wider the quicker. On
