@@ -105,13 +105,15 @@ def test_a_few_lanes_at_a_time_equal_the_whole_batch_at_once():
         run = lambda *a: _two_body(*a, batch_loop=lanes)  # noqa: E731
         return jax.vmap(run)(scale, forces, starts)
 
-    whole, two, three = batch(True), batch(2), batch(3)
+    whole, two, three, wide = batch(True), batch(2), batch(3), batch(16)
     nonfinite, most = eo.Status.NONFINITE, eo.Status.MAX_STEPS_REACHED
     np.testing.assert_array_equal(two.status, [0, most, nonfinite, nonfinite, 0] * 2)
     _assert_same(whole, two, **TIGHT)
-    # how many lanes, and which lane an element ran in, changes nothing
-    for a, b in zip(jax.tree.leaves(two), jax.tree.leaves(three), strict=True):
-        np.testing.assert_array_equal(a, b)
+    # how many lanes, and which lane an element ran in, changes nothing (16: more
+    # lanes than elements, none waiting, every result stored after the loop)
+    for other in (three, wide):
+        for a, b in zip(jax.tree.leaves(two), jax.tree.leaves(other), strict=True):
+            np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("lanes", [0, -2])
