@@ -24,8 +24,8 @@ samples at once: when a sample stops while others wait, its results are stored a
 the next sample waiting starts in its lane, from a start computed before the loop
 (in blocks of `lanes` samples); the samples still in their lanes when none waits
 are stored together after the loop (so a batch that fits its lanes, as on a GPU,
-stores nothing inside the loop). A batch of samples all at once runs until its slowest sample
-is done, its other lanes idle meanwhile: for the 1024 samples of
+stores nothing inside the loop). A batch of samples all at once runs until its
+slowest sample is done, its other lanes idle meanwhile: for the 1024 samples of
 `benchmarks/montecarlo.py` (Dopri8, rtol 1e-9) in batches of 128, 15 % more lane
 steps than the samples' own steps. Each sample's results do not depend on the
 number of lanes or on the lane it ran in; they equal those of the whole batch at
@@ -296,7 +296,12 @@ def batch_solve(
     # again. A controller that never jumps (diffrax's `PIDController`) returns the
     # Python constant `False`: then the loop neither records jumps nor tests for
     # them at every step.
-    jax.eval_shape(adapt, arrays, t0, t0, y, y, y, controller_state)
+    whole_state = (
+        recorder.with_accepted_steps(controller_state, record)
+        if recording
+        else controller_state
+    )
+    jax.eval_shape(adapt, arrays, t0, t0, y, y, y, whole_state)
     track_jumps = fsal and any(jumps)
     if not track_jumps:
         carry["made_jump"] = None
