@@ -231,7 +231,7 @@ def batch_solve(
     batched, shared = eqx.partition(arrays, spec)
     if queued:
         # The lanes start with the first `lanes` samples; `sample`: the sample in
-        # each lane (`batch` once none is left for it); `head`: the next sample
+        # each lane; `head`: the next sample waiting
         carry = _row(carry, slice(0, width))
         carry["setup"] = _row(
             dict(ts=ts, clip_floor=clip_floor, t1=t1, batched=batched),
@@ -279,8 +279,7 @@ def batch_solve(
         return (c["tprev"] < setup_of(c)["t1"]) & (c["result"] == SUCCESSFUL)
 
     def running(c):
-        going = unfinished(c) & (c["num_steps"] < max_steps)
-        return going & (c["sample"] < batch) if queued else going
+        return unfinished(c) & (c["num_steps"] < max_steps)
 
     jumps = []  # whether the controller may report a jump (see below)
 
@@ -383,14 +382,10 @@ def batch_solve(
             lambda b, v: b.at[rows, slot].set(v, mode="drop"), saved_ys, y
         )
 
-    def stopped(c):
-        """The lanes whose sample has stopped."""
-        return (c["sample"] < batch) & ~running(c)
-
     def retire_and_start(c):
         """The first lane whose sample has stopped: the sample's results stored,
-        and the next sample started in its place (or the lane left idle)."""
-        lane = jnp.argmax(stopped(c))
+        and the next sample waiting started in its place."""
+        lane = jnp.argmax(~running(c))
         sample = c["sample"][lane]
         end = jax.tree.map(
             lambda b, v: b[lane].at[c["next_time"][lane]].set(v[lane], mode="drop"),
@@ -410,14 +405,12 @@ def batch_solve(
         )
         done = _set_row(c["done"], sample, finals)
         following = c["head"]
-        source = jnp.minimum(following, batch - 1)
         state = {k: c[k] for k in start if c[k] is not None}
-        begin = _row({k: start[k] for k in state}, source)
+        begin = _row({k: start[k] for k in state}, following)
         state = _set_row(state, lane, begin)
         lane_setup = dict(ts=ts, clip_floor=clip_floor, t1=t1, batched=batched)
-        setup = _set_row(c["setup"], lane, _row(lane_setup, source))
+        setup = _set_row(c["setup"], lane, _row(lane_setup, following))
         saved_ys = jax.tree.map(lambda b: b.at[lane].set(jnp.inf), c["saved_ys"])
-        more = following < batch
         return (
             c
             | state
@@ -425,8 +418,8 @@ def batch_solve(
                 setup=setup,
                 saved_ys=saved_ys,
                 done=done,
-                sample=c["sample"].at[lane].set(jnp.where(more, following, batch)),
-                head=following + more.astype(following.dtype),
+                sample=c["sample"].at[lane].set(following),
+                head=following + 1,
             )
         )
 
@@ -434,14 +427,13 @@ def batch_solve(
         """Every lane whose sample has stopped, while samples are waiting."""
 
         def waiting(c):
-            return jnp.any(stopped(c)) & (c["head"] < batch)
+            return jnp.any(~running(c)) & (c["head"] < batch)
 
         return jax.lax.while_loop(waiting, retire_and_start, c)
 
     def retire_all(c):
         """The results of the samples still in their lanes (stopped once no
         sample waits, and kept there), stored at once."""
-        index = jnp.where(c["sample"] < batch, c["sample"], batch)
         finals = dict(
             saved_ys=with_end_state(c["saved_ys"], c["next_time"], c["y"]),
             tprev=c["tprev"],
@@ -451,9 +443,7 @@ def batch_solve(
             num_steps=c["num_steps"],
             next_time=c["next_time"],
         )
-        return jax.tree.map(
-            lambda d, v: d.at[index].set(v, mode="drop"), c["done"], finals
-        )
+        return _set_row(c["done"], c["sample"], finals)
 
     if queued:
         carry = refill(carry)

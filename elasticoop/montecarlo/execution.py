@@ -183,7 +183,7 @@ def chunk_size_for(
     sample's record held three times (device result, host copy, file buffer) and
     `_CHUNK_FACTOR` times its trajectory.
     """
-    record = 3 * _record_bytes(study) + _CHUNK_FACTOR * _trajectory_bytes(study)
+    record = _chunk_bytes_per_sample(study)
     lanes = batch_width * n_devices
     in_flight = lanes * working_memory_per_sample(study)
     needed = _batch_bytes(study, lanes)
@@ -234,11 +234,13 @@ def _record_bytes(study: Study) -> int:
 def _batch_bytes(study: Study, lanes: int) -> int:
     """Memory of one batch of `lanes` samples in flight: each sample's working
     memory and its record held three times (see `chunk_size_for`)."""
-    return lanes * (
-        working_memory_per_sample(study)
-        + 3 * _record_bytes(study)
-        + _CHUNK_FACTOR * _trajectory_bytes(study)
-    )
+    return lanes * (working_memory_per_sample(study) + _chunk_bytes_per_sample(study))
+
+
+def _chunk_bytes_per_sample(study: Study) -> int:
+    """Memory of each sample of a chunk, integrated or not (see `chunk_size_for`):
+    its record held three times and `_CHUNK_FACTOR` times its trajectory."""
+    return 3 * _record_bytes(study) + _CHUNK_FACTOR * _trajectory_bytes(study)
 
 
 def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
