@@ -64,8 +64,8 @@ from _timing import interleaved_best_times  # noqa: E402
 
 import elasticoop as eo  # noqa: E402
 from elasticoop import _simulate, default_scenario  # noqa: E402
-from elasticoop._error_norm import rms_norm  # noqa: E402
 from elasticoop._forces import check_force  # noqa: E402
+from elasticoop._integrate.error_norm import rms_norm  # noqa: E402
 
 
 def parameters(model):

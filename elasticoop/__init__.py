@@ -21,6 +21,7 @@ from ._forces import (  # noqa: E402
     SampledForce as SampledForce,
     generalized_wrench as generalized_wrench,
 )
+from ._integrate import StepwiseAdjoint as StepwiseAdjoint  # noqa: E402
 from ._lagrange import (  # noqa: E402
     accelerations as accelerations,
     constrained_accelerations as constrained_accelerations,
@@ -66,7 +67,6 @@ from ._simulate import (  # noqa: E402
     simulate as simulate,
 )
 from ._status import Status as Status  # noqa: E402
-from ._stepwise_adjoint import StepwiseAdjoint as StepwiseAdjoint  # noqa: E402
 from ._trajectory import Trajectory as Trajectory  # noqa: E402
 from ._version import __version__ as __version__  # noqa: E402
 

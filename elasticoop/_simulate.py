@@ -21,8 +21,6 @@ from ._custom_types import (
     Times,
     Validated,
 )
-from ._error_norm import rms_norm
-from ._event_location import locate_event
 from ._forces import (
     AbstractForce,
     check_force,
@@ -30,15 +28,20 @@ from ._forces import (
     pad_to_bodies,
     sampled_interval,
 )
-from ._integration import integrate
+from ._integrate import (
+    MIN_STEP_ULPS,
+    StepwiseAdjoint,
+    StopFailedSteps,
+    integrate,
+    locate_event,
+    result_code,
+    rms_norm,
+)
 from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
 from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions, check_initial_step
-from ._outcome import result_code
 from ._status import Status, status_message
-from ._step_control import MIN_STEP_ULPS, StopFailedSteps
-from ._stepwise_adjoint import StepwiseAdjoint
 from ._trajectory import Trajectory
 from ._validation import as_float_array, check_times, is_concrete, xp
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from elasticoop._batch_step import explicit_step, stage_buffer
+from elasticoop._integrate.rk_step import explicit_step, stage_buffer
 
 
 def _field(t, y, args=None):

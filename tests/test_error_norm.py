@@ -1,6 +1,6 @@
 """The step-size controller's error norm has the value (to rounding) and the
 derivative of diffrax's default (`optimistix.rms_norm`), checked against it, and
-no dot product (what it is for: see `elasticoop/_error_norm.py`)."""
+no dot product (what it is for: see `elasticoop/_integrate/error_norm.py`)."""
 
 import jax
 import jax.numpy as jnp
@@ -8,8 +8,8 @@ import numpy as np
 import optimistix as optx
 import pytest
 
-from elasticoop._error_norm import rms_norm
-from elasticoop._fused_sums import all_finite, sum_by_halves
+from elasticoop._integrate.error_norm import rms_norm
+from elasticoop._integrate.fused_sums import all_finite, sum_by_halves
 
 
 @pytest.mark.parametrize("size", [1, 2, 3, 7, 38, 782])

@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from elasticoop._event_location import hermite, locate_event
+from elasticoop._integrate.events import hermite, locate_event
 
 T0, T1 = 0.2, 0.7
 STEP = (jnp.asarray(T0), jnp.asarray(T1))

@@ -10,7 +10,7 @@ import pytest
 from helpers import Wave, three_body_model, three_body_state
 
 import elasticoop as eo
-from elasticoop._stepwise_adjoint import StepLayout
+from elasticoop._integrate.recorder import StepLayout
 
 MODEL = three_body_model()
 Y0 = three_body_state().at[1, :3].add(jnp.array([-0.01, 0.005, 0.01]))

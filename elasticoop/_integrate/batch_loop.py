@@ -1,11 +1,11 @@
 """One loop over a whole `vmap`-ed batch: the solve of `simulate(..., batch_loop=True)`.
 
-`integrate` (`_integration.py`) hands a batched solve here through
+`integrate` (`solve.py`) hands a batched solve here through
 `jax.custom_batching.custom_vmap`. Why: `vmap` of diffrax's loop runs the solver's
 step under `vmap`, which costs about three times the step on one batched array
 (`benchmarks/loop.py`: the Tsit5 step alone). The batch loop steps the batched
 state at once, each sample $b$ from its own time $t_b$ over its own step $h_b$,
-with the solver's Butcher tableau (`_batch_step.py`: diffrax's arithmetic, its sums
+with the solver's Butcher tableau (`rk_step.py`: diffrax's arithmetic, its sums
 over the stages written elementwise; equal to diffrax's step to rounding).
 Everything else is diffrax's, per sample (`vmap`-ed, cheap scalars): the step-size
 controller's `init` and `adapt_step_size`, the solver's interpolation for the
@@ -42,9 +42,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
-from ._batch_step import by_row, explicit_step, stage_buffer
-from ._outcome import EVENT_OCCURRED, MAX_STEPS_REACHED, SUCCESSFUL, Outcome
-from ._stepwise_adjoint import AbstractStepRecorder
+from .outcome import EVENT_OCCURRED, MAX_STEPS_REACHED, SUCCESSFUL, Outcome
+from .recorder import AbstractStepRecorder
+from .rk_step import by_row, explicit_step, stage_buffer
 
 
 class _Wrapped(diffrax.AbstractTerm):

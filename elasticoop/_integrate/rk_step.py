@@ -1,6 +1,6 @@
 """One step of an explicit Runge-Kutta method on a batch, each sample over its own step.
 
-The batch loop of `_batch_loop.py` moves sample $b$ from its time $t_b$ to
+The batch loop of `batch_loop.py` moves sample $b$ from its time $t_b$ to
 $t_b + h_b$ in one step of the solver's Butcher tableau ($a_{ij}$, $b_j$, the error
 weights $e_j$, $c_i$), the arithmetic of diffrax's Runge-Kutta step for each sample:
 

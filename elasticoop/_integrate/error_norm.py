@@ -3,7 +3,7 @@
 `rms_norm` has the value (to rounding: the sum's order differs) and the derivative
 of diffrax's default error norm (`optimistix.rms_norm`, the root mean square of the
 entries), with the sum of the squares written as additions of halves instead of a
-dot product (`_fused_sums.py`). Under `vmap` (the
+dot product (`fused_sums.py`). Under `vmap` (the
 batch loop of `run_study`) XLA's CPU backend compiles that dot product of short
 vectors, batched, to a library kernel with a large fixed cost: on a 2-core x86_64
 CPU it took about 33 us of each step of 128 samples of 38 entries, against 26 us
@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, PyTree
 
-from ._custom_types import Scalar
-from ._fused_sums import sum_by_halves
+from .._custom_types import Scalar
+from .fused_sums import sum_by_halves
 
 
 def rms_norm(x: PyTree[Array]) -> Scalar:

@@ -5,7 +5,7 @@ step-size controller, output times `ts` plus the final state, stop conditions
 without a root finder, the controller's final state). Asked for `batch_loop`, it
 keeps doing so on one run, but when `jax.vmap` batches it, it integrates the whole
 batch in one loop instead of `vmap`-ing diffrax's (`jax.custom_batching.custom_vmap`;
-the loop and why: `_batch_loop.py`).
+the loop and why: `batch_loop.py`).
 
 Not differentiable (nor under `jax.jacfwd`): use it for forward runs of batches
 (Monte Carlo), not for gradients. Explicit Runge-Kutta solvers only; with another
@@ -21,15 +21,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PyTree
 
-from ._batch_loop import batch_solve
-from ._custom_types import Scalar
-from ._outcome import Outcome
-from ._stepwise_adjoint import (
-    AbstractStepRecorder,
-    StepwiseAdjoint,
-    check_solver,
-    stepwise_solve,
-)
+from .._custom_types import Scalar
+from .adjoint import StepwiseAdjoint, check_solver, stepwise_solve
+from .batch_loop import batch_solve
+from .outcome import Outcome
+from .recorder import AbstractStepRecorder
 
 
 class _Setup(eqx.Module):

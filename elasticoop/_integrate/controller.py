@@ -12,9 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, PyTree
 
-from ._custom_types import Scalar
-from ._fused_sums import all_finite
-from ._stepwise_adjoint import AbstractStepRecorder, AcceptedSteps, StepLayout
+from .._custom_types import Scalar
+from .fused_sums import all_finite
+from .recorder import AbstractStepRecorder, AcceptedSteps, StepLayout
 
 # A step shorter than this many units in the last place of the times that gives NaN
 # or inf ends the run: the vector field is not finite right after the current time.

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Bool
 
-from ._custom_types import Scalar, State
+from .._custom_types import Scalar, State
 
 # bisection of the step in which a condition fell to zero (see the docstring);
 # optimistix's `norm` is a class variable, which mypy takes for a field
