@@ -17,7 +17,7 @@ from .._config.identify_settings import (
     fit_selection,
     identify_spec_problems,
 )
-from .._config.schema import FITTED_QUANTITIES, IDENTIFY_METHODS
+from .._config.schema import FITTED_QUANTITIES, IDENTIFY_METHODS, INITIAL_RULES
 from .._identify import identify
 from .._io.fitted_scenario import fitted_scenario_text
 from .._io.strict_json import strict_json
@@ -37,7 +37,10 @@ from ._common import (
 )
 
 NAME = "identify"
+# The fit ended where the model does not explain the data (status "misfit").
+EXIT_MISFIT = 4
 _START_FAILURE = "the simulation at the starting parameters fails"
+_SENSITIVITY_FAILURE = "the simulation with sensitivities fails at the start"
 
 
 def register(subparsers) -> None:
@@ -106,6 +109,15 @@ def register(subparsers) -> None:
         "(equation_error, the default) or from the scenario's values (model)",
     )
     parser.add_argument(
+        "--initial",
+        choices=INITIAL_RULES,
+        help="how each data file's initial state is set: equilibrium (at rest in "
+        "the static equilibrium of the parameters evaluated, recomputed at every "
+        "step of the fit; the default for [initial] from = \"equilibrium\"), "
+        "frozen (the scenario's initial state as it is; the default otherwise), "
+        "data (the first samples) or fitted (estimated with the parameters)",
+    )
+    parser.add_argument(
         "--no-velocities",
         action="store_true",
         help="ignore the velocity samples of the data files",
@@ -126,6 +138,7 @@ def fit_settings(scenario, args) -> IdentifySpec:
         "max_iterations": args.max_iterations,
         "method": args.method,
         "init": args.init,
+        "initial": args.initial,
     }
     given = {k: v for k, v in overrides.items() if v is not None}
     spec = dataclasses.replace(
@@ -157,6 +170,16 @@ def fit_settings(scenario, args) -> IdentifySpec:
             )
         )
     return spec
+
+
+def initial_rule_of(scenario, spec: IdentifySpec) -> str:
+    """The initial-state rule of the fit: `spec.initial`, else `"equilibrium"` for
+    a scenario that starts from its equilibrium and `"frozen"` otherwise."""
+    if spec.initial is not None:
+        return spec.initial
+    if getattr(scenario, "initial_from", None) == "equilibrium":
+        return "equilibrium"
+    return "frozen"
 
 
 def load_data(scenario, args) -> list:
@@ -195,7 +218,7 @@ def execute(args) -> int:
         f"{len(selection.names)} parameters from {len(experiments)} data file"
         f"{'s' if len(experiments) != 1 else ''}",
     )
-    options = scenario.options
+    initial = initial_rule_of(scenario, spec)
     try:
         result = identify(
             scenario.model,
@@ -204,14 +227,16 @@ def execute(args) -> int:
             mask=selection.mask,
             method=spec.method,
             init=spec.init,
-            max_steps=spec.max_iterations,
+            max_iterations=spec.max_iterations,
             progress=not args.quiet,
-            solver=options.diffrax_solver(),
-            sim_rtol=options.rtol,
-            sim_atol=options.atol,
+            options=scenario.options,
+            initial=initial,
+            body_names=scenario.names,
         )
     except ValueError as err:
-        if str(err).startswith(_START_FAILURE):
+        if str(err).startswith(_START_FAILURE) or str(err).startswith(
+            _SENSITIVITY_FAILURE
+        ):
             files = ", ".join(args.data)
             print(f"elasticoop {NAME}: {err} (data files: {files})", file=sys.stderr)
             return EXIT_SIMULATION
@@ -223,12 +248,17 @@ def execute(args) -> int:
             renamed(note, result.names, selection.names) for note in result.notes
         ),
     )
-    paths = write_results(scenario, experiments, result, selection, folder, args)
+    paths = write_results(
+        scenario, experiments, result, selection, folder, args, initial
+    )
     say(args, result.report())
     say(args, "wrote " + ", ".join(str(p) for p in paths))
     if result.status == "failed":
         print(f"elasticoop {NAME}: the fit failed: {result.reason}", file=sys.stderr)
         return EXIT_SIMULATION
+    if result.status == "misfit":
+        print(f"elasticoop {NAME}: misfit: {result.reason}", file=sys.stderr)
+        return EXIT_MISFIT
     return EXIT_OK
 
 
@@ -268,9 +298,11 @@ def report_data(scenario, result, selection: FitSelection, data_files) -> dict:
     }
 
 
-def write_results(scenario, experiments, result, selection, folder, args) -> list:
-    """Write the fitted scenario, the report and the plots into `folder` as a
-    whole; returns the paths."""
+def write_results(
+    scenario, experiments, result, selection, folder, args, initial="frozen"
+) -> list:
+    """Write the fitted scenario (with the fit's initial-state rule `initial`),
+    the report and the plots into `folder` as a whole; returns the paths."""
     when = datetime.datetime.now().isoformat(timespec="seconds")
     header = (
         f"{scenario.name}: fitted by elasticoop identify on {when}\n"
@@ -279,7 +311,13 @@ def write_results(scenario, experiments, result, selection, folder, args) -> lis
         f"estimates and standard errors in report.txt beside this file."
     )
     files = {
-        "fitted_scenario.toml": fitted_scenario_text(scenario, result.model, header),
+        "fitted_scenario.toml": fitted_scenario_text(
+            scenario,
+            result.model,
+            header,
+            initial=initial,
+            initial_state=result.initial_states[0] if result.initial_states else None,
+        ),
         "report.txt": result.report() + "\n",
         "report.json": strict_json(report_data(scenario, result, selection, args.data)),
     }
@@ -298,11 +336,11 @@ def write_plots(scenario, experiments, result, outdir: pathlib.Path, args) -> li
     plot_loss_history(result.loss_history).savefig(outdir / "loss_history.png", dpi=110)
     names = ["loss_history.png"]
     kwargs = scenario.options.kwargs()
-    for k, (path, e) in enumerate(zip(args.data, experiments), start=1):
+    starts = result.initial_states or [(e.y_init, e.ydot_init) for e in experiments]
+    for k, (path, e, start) in enumerate(zip(args.data, experiments, starts), 1):
         traj = simulate(
             result.model,
-            e.y_init,
-            e.ydot_init,
+            *start,
             e.ts,
             forces=e.forces,
             throw=False,

@@ -87,6 +87,9 @@ def _experiment(data: MeasuredData, scenario, source, velocities) -> Experiment:
             sigma=data.sigma,
             ydot=ydot,
             sigma_ydot=sigma_ydot,
+            # a scenario that starts at rest in its equilibrium: the experiment
+            # too (the contact bodies held at their poses)
+            rest=getattr(scenario, "initial_from", None) == "equilibrium" or None,
         )
     except ValueError as err:
         raise DataFileError(
