@@ -113,7 +113,7 @@ def register(subparsers) -> None:
         choices=INITIAL_RULES,
         help="how each data file's initial state is set: equilibrium (at rest in "
         "the static equilibrium of the parameters evaluated, recomputed at every "
-        "step of the fit; the default for [initial] from = \"equilibrium\"), "
+        'step of the fit; the default for [initial] from = "equilibrium"), '
         "frozen (the scenario's initial state as it is; the default otherwise), "
         "data (the first samples) or fitted (estimated with the parameters)",
     )
