@@ -14,6 +14,7 @@ import numpy as np
 from .._config import DataFileError, load_experiment
 from .._config.identify_settings import (
     FitSelection,
+    derived_feedforward,
     fit_selection,
     identify_spec_problems,
 )
@@ -241,13 +242,20 @@ def execute(args) -> int:
             print(f"elasticoop {NAME}: {err} (data files: {files})", file=sys.stderr)
             return EXIT_SIMULATION
         raise UserError(str(err)) from err
-    result = dataclasses.replace(
-        result,
-        names=selection.names,
-        notes=tuple(
-            renamed(note, result.names, selection.names) for note in result.notes
-        ),
-    )
+    notes = [renamed(note, result.names, selection.names) for note in result.notes]
+    rule = derived_feedforward(scenario)
+    if rule is not None:
+        numbers = np.asarray(scenario.forces.feedforward)
+        notes.append(
+            f'the pose tracking\'s feedforward = "{rule}" is what the experimenter '
+            f"applied: frozen as the numbers of the scenario as given (its nominal "
+            f"model), not recomputed with the parameters; translational parts "
+            + "; ".join(
+                f"{name} {np.array2string(row[:3], precision=4)} N"
+                for name, row in zip(scenario.names[1:], numbers)
+            )
+        )
+    result = dataclasses.replace(result, names=selection.names, notes=tuple(notes))
     paths = write_results(
         scenario, experiments, result, selection, folder, args, initial
     )
@@ -262,7 +270,9 @@ def execute(args) -> int:
     return EXIT_OK
 
 
-def report_data(scenario, result, selection: FitSelection, data_files) -> dict:
+def report_data(
+    scenario, result, selection: FitSelection, data_files, initial="frozen"
+) -> dict:
     """The report as a dictionary (written as `report.json`)."""
     unc = result.uncertainty
     return {
@@ -280,6 +290,27 @@ def report_data(scenario, result, selection: FitSelection, data_files) -> dict:
         "wall_time_s": result.wall_time,
         "loss_history": result.loss_history,
         "noise_scale": unc.noise_scale,
+        "initial_state_rule": initial,
+        "stderr_meaningful": result.stderr_meaningful,
+        "misfit": None
+        if result.misfit is None
+        else {
+            "ratio": result.misfit.ratio,
+            "threshold": result.misfit.threshold,
+            "declared_noise": result.misfit.declared,
+            "noise_floor": result.misfit.noise_floor,
+            "autocorrelation": result.misfit.autocorrelation,
+            "worst": [
+                {
+                    "channel": result.misfit.channel_name(
+                        w, scenario.names, scenario.model.convention
+                    ),
+                    "ratio": w.ratio,
+                    "time": w.time,
+                }
+                for w in result.misfit.worst
+            ],
+        },
         "uncertainty_note": unc.reason,
         "notes": list(result.notes),
         "parameters": [
@@ -319,7 +350,9 @@ def write_results(
             initial_state=result.initial_states[0] if result.initial_states else None,
         ),
         "report.txt": result.report() + "\n",
-        "report.json": strict_json(report_data(scenario, result, selection, args.data)),
+        "report.json": strict_json(
+            report_data(scenario, result, selection, args.data, initial)
+        ),
     }
     with folder.writing() as staging:
         for name, text in files.items():
@@ -333,7 +366,11 @@ def write_results(
 def write_plots(scenario, experiments, result, outdir: pathlib.Path, args) -> list:
     from .._plotting import plot_fit, plot_loss_history
 
-    plot_loss_history(result.loss_history).savefig(outdir / "loss_history.png", dpi=110)
+    misfit = result.misfit
+    floor = misfit.noise_floor if misfit is not None and misfit.declared else None
+    plot_loss_history(result.loss_history, noise_floor=floor).savefig(
+        outdir / "loss_history.png", dpi=110
+    )
     names = ["loss_history.png"]
     kwargs = scenario.options.kwargs()
     starts = result.initial_states or [(e.y_init, e.ydot_init) for e in experiments]

@@ -201,8 +201,10 @@ def identify(
       data: `status` is `"misfit"` (not converged), and the report marks the
       standard errors as not meaningful and names the worst channels and times.
       Default `MISFIT_THRESHOLD` (4: a residual twice the noise, RMS).
-    - `body_names`: names of the bodies in the report's initial-state entries
-      (default `object, contact1, ...`).
+    - `body_names`: names of the bodies in the parameters' names (e.g.
+      `stiffness[plate-front].x`, `mass[plate]`; default: their indices,
+      `stiffness[0-1].x`, `bodies.mass[0]`) and in the report's initial-state
+      entries (default `object, contact1, ...`).
 
     **Returns:** an `IdentificationResult` (`.model`, `.stderr`, `.loss_history`,
     `.converged`, `.table`, `.held`, `.initial_states`, `.report()`, ...).
@@ -223,14 +225,15 @@ def identify(
         options, solver, sim_rtol, sim_atol, max_sim_steps, gimbal_tol, link_tol
     )
     experiments = check_experiments(model, experiments)
-    free = free_parameters(model, where, transform, mask)
+    names_of_bodies = checked_body_names(body_names, model.n_bodies)
+    named = None if body_names is None else names_of_bodies
+    free = free_parameters(model, where, transform, mask, named)
     optimizer, method_name = _optimizer(method)
     notes: list[str] = []
     experiments, fit_initial, rest = initial_rule(
         initial, fit_initial, experiments, window, polyorder, notes
     )
     fit_parts = fitted_parts(fit_initial)
-    names_of_bodies = checked_body_names(body_names, model.n_bodies)
     if not isinstance(hold_unidentifiable, bool):
         raise ValueError(
             f"hold_unidentifiable must be True or False, got {hold_unidentifiable!r}"
@@ -278,19 +281,20 @@ def identify(
     try:
         u_start = free.unconstrained(start)
         candidates.append(("the model's values", start))
-    except ValueError:
+    except ValueError as err:
         if init == "model":
             raise
+        notes.append(f"the model's values are no start ({err})")
     evaluated = []
     u: np.ndarray | jax.Array
     for label, p in candidates:
         u = np.concatenate([free.unconstrained(p), no_correction])
         value, runs, _ = _evaluate(jnp.asarray(u), problem)  # inf if failed
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
-        evaluated.append((float(value), label, p, u, ok, steps))
+        evaluated.append((float(value), label, p, u, ok, steps, runs.status))
     # the equation-error start wins ties (it is listed first; the sort is stable)
     order = sorted(range(len(evaluated)), key=lambda k: evaluated[k][0])
-    _, label, initial, u0, ok, steps = evaluated[order[0]]
+    _, label, initial, u0, ok, steps, status0 = evaluated[order[0]]
     if len(evaluated) > 1:
         notes.append(
             f"started from {label} (loss "
@@ -298,7 +302,7 @@ def identify(
             + ")"
         )
     if not np.all(ok):
-        _raise_start_failure(problem, ok)
+        _raise_start_failure(problem, ok, np.asarray(status0))
     start_problem = problem
 
     def fit(problem: FitProblem, u0, budget, refit=False) -> tuple[FitProblem, Trace]:
@@ -345,7 +349,7 @@ def identify(
     # descent direction) is tried again from the other start; the lower end wins.
     # One that ran out of `max_steps` is not: the caller limited the work.
     other_simulations = 0
-    _, label2, initial2, u02, ok2, steps2 = evaluated[order[-1]]  # (two at most)
+    _, label2, initial2, u02, ok2, steps2, _ = evaluated[order[-1]]  # (two at most)
     if (
         not _decreased(trace)
         and trace.status != "max_iterations"
@@ -438,7 +442,7 @@ def identify(
             f"parameter reached the end of its range, e.g. 0 for a log-parameter): "
             f"no standard errors in physical units"
         )
-    fitted = free_parameters(model, where, "identity", mask).apply(
+    fitted = free_parameters(model, where, "identity", mask, named).apply(
         model, jnp.asarray(estimate)
     )
     by_experiment: list = [None] * len(experiments)
@@ -724,12 +728,26 @@ def _evaluate(u, problem):
     return value, runs, parts
 
 
-def _raise_start_failure(problem, ok):
+def _raise_start_failure(problem, ok, status=None):
     bad = [problem.order[k] for k in np.flatnonzero(~ok)]
+    how = ""
+    if status is not None:
+        codes = [Status(int(status[k])) for k in np.flatnonzero(~ok)]
+        how = ": " + ", ".join(
+            f"experiment {e} stopped with {c.name}"
+            + (
+                f" (the step limit max_steps = {problem.options.max_steps} of the "
+                f"simulation settings)"
+                if c == Status.MAX_STEPS_REACHED
+                else ""
+            )
+            for e, c in zip(bad, codes)
+        )
     raise ValueError(
-        f"the simulation at the starting parameters fails for experiments {bad} "
-        f"(stops early: gimbal lock, a collapsed link, the step limit or non-finite "
-        f"values; status codes are listed in elasticoop.Status: "
+        f"the simulation at the starting parameters fails for experiments {bad}"
+        f"{how} (stops early: gimbal lock, a collapsed link, the step limit or "
+        f"non-finite values; status codes are listed in elasticoop.Status: "
         f"{', '.join(f'{s.value} {s.name}' for s in Status)}); start from other "
-        f"values, or pass init='model' with a model that simulates"
+        f"values or raise the limit, or pass init='model' with a model that "
+        f"simulates"
     )

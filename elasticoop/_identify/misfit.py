@@ -4,15 +4,24 @@ At the estimate, with $r$ the residuals divided by the noise level $\\sigma$ of
 each measured channel (experiment, body, coordinate), $N$ measured samples and
 $n_p$ fitted unknowns, a model that explains the data leaves
 $$\\chi^2_\\nu = \\frac{\\sum r^2}{N - n_p} \\approx 1$$
-(the noise floor of the loss $\\tfrac12\\sum r^2$ is $\\tfrac12 (N - n_p)$). The
-fit is a **misfit** when $\\chi^2_\\nu$ exceeds `MISFIT_THRESHOLD` (4: residuals
-twice the noise, RMS). The noise level is the one the data declare
-(`Experiment.sigma`); without it, that implied by the data's own second
-differences, $\\hat\\sigma_c^2 = \\overline{(y_{k+1} - 2y_k + y_{k-1})^2}/6$
-per channel (exact for white noise on a straight line; motion fast against the
-sampling makes it larger, so the test then errs towards accepting), at least the
-simulation's own accuracy ($10\\,(\\text{rtol}\\,|y|_{\\max} + \\text{atol})$, the
-floor of noise-free data).
+(the noise floor of the loss $\\tfrac12\\sum r^2$ is $\\tfrac12 (N - n_p)$).
+
+- **Declared noise** (`Experiment.sigma`): the fit is a **misfit** when
+  $\\chi^2_\\nu$ exceeds `MISFIT_THRESHOLD` (4: residuals twice the noise, RMS).
+- **No declared noise**: the residuals' size cannot be judged against a noise
+  level the fit itself estimates, so their structure is: noise leaves residuals
+  that are uncorrelated from one sample to the next, while a model that does not
+  explain the data leaves smooth, correlated ones. The fit is a misfit when the
+  pooled lag-1 autocorrelation of the residuals along time,
+  $\\rho_1 = \\sum r_k r_{k+1} / \\sum r_k^2$ over the channels, exceeds
+  `AUTOCORRELATION_THRESHOLD` (0.5; about 0 $\\pm 1/\\sqrt N$ for white
+  noise), unless the residuals are within the simulation's own accuracy
+  ($10\\,(\\text{rtol}\\,|y|_{\\max} + \\text{atol})$ per channel: noise-free
+  data fitted exactly). $\\chi^2_\\nu$ is then reported against the noise the
+  data's own second differences imply,
+  $\\hat\\sigma_c^2 = \\overline{(y_{k+1} - 2y_k + y_{k-1})^2}/6$ per channel
+  (exact for white noise on a straight line, larger where the motion is fast
+  against the sampling).
 """
 
 import dataclasses
@@ -22,6 +31,7 @@ import numpy as np
 from .._naming import coordinate_names
 
 MISFIT_THRESHOLD = 4.0
+AUTOCORRELATION_THRESHOLD = 0.5
 # How many channels the report names.
 WORST_SHOWN = 3
 
@@ -51,6 +61,8 @@ class MisfitCheck:
     - `noise_floor`: the loss the noise alone explains, $\\tfrac12 (N - n_p)$
       in units of the declared noise (the fit's own loss units).
     - `worst`: the channels with the largest ratio, largest first.
+    - `autocorrelation`: the pooled lag-1 autocorrelation of the residuals above
+      the simulation's accuracy (NaN where none are).
     """
 
     ratio: float
@@ -58,10 +70,15 @@ class MisfitCheck:
     declared: bool
     noise_floor: float
     worst: tuple[WorstChannel, ...] = ()
+    autocorrelation: float = float("nan")
 
     @property
     def misfit(self) -> bool:
-        return bool(not np.isfinite(self.ratio) or self.ratio > self.threshold)
+        if not np.isfinite(self.ratio):
+            return True
+        if self.declared:
+            return bool(self.ratio > self.threshold)
+        return bool(self.autocorrelation > AUTOCORRELATION_THRESHOLD)
 
     def channel_name(self, w: WorstChannel, body_names, convention: str) -> str:
         coords = coordinate_names(convention)
@@ -74,11 +91,18 @@ class MisfitCheck:
     def describe(self, body_names, convention: str) -> str:
         """One sentence: the ratio against the threshold, and the worst channels
         with the time of their largest residual."""
-        noise = "declared noise" if self.declared else "noise the data imply"
-        text = (
-            f"the residuals are {self.ratio:.3g} times the {noise} (mean square per "
-            f"degree of freedom; misfit above {self.threshold:g})"
-        )
+        if self.declared:
+            text = (
+                f"the residuals are {self.ratio:.3g} times the declared noise (mean "
+                f"square per degree of freedom; misfit above {self.threshold:g})"
+            )
+        else:
+            text = (
+                f"the residuals are correlated from sample to sample (lag-1 "
+                f"autocorrelation {self.autocorrelation:.3g}, misfit above "
+                f"{AUTOCORRELATION_THRESHOLD:g}: not noise) and "
+                f"{self.ratio:.3g} times the noise the data imply"
+            )
         if self.worst:
             text += "; worst: " + ", ".join(
                 f"{self.channel_name(w, body_names, convention)} ({w.ratio:.3g}x, "
@@ -108,6 +132,7 @@ def misfit_check(
     declared = problem.batches[0].experiments.sigma is not None
     scale = float(problem.scale)
     total, count = 0.0, 0
+    lag_sum, lag_norm = 0.0, 0.0  # the pooled lag-1 autocorrelation
     channels = []  # (ratio, experiment, body, coordinate, time)
     row = 0
     for data, part in zip(problem.batches, parts):
@@ -128,6 +153,12 @@ def misfit_check(
                 top = np.nanmax(np.abs(y), axis=0)
                 floor = (10 * (rtol * top + atol)) ** 2
                 var = np.where(np.isfinite(var), np.maximum(var, floor), floor)
+                n_c = np.maximum(measured[b].sum(axis=0), 1)
+                above = np.sum(rb**2, axis=0) / n_c > floor
+                both = measured[b][1:] & measured[b][:-1]
+                lagged = np.where(both, rb[1:] * rb[:-1], 0.0)
+                lag_sum += float(np.sum(np.where(above, lagged.sum(axis=0), 0.0)))
+                lag_norm += float(np.sum(np.where(above, np.sum(rb**2, axis=0), 0.0)))
                 rb = rb / np.sqrt(var)
             n = measured[b].sum(axis=0)
             ms = np.where(n > 0, np.sum(rb**2, axis=0) / np.maximum(n, 1), 0.0)
@@ -154,4 +185,7 @@ def misfit_check(
         WorstChannel(e, body, c, ratio_c, t)
         for ratio_c, e, body, c, t in channels[:WORST_SHOWN]
     )
-    return MisfitCheck(float(ratio), float(threshold), declared, 0.5 * dof, worst)
+    rho = lag_sum / lag_norm if lag_norm > 0 else float("nan")
+    return MisfitCheck(
+        float(ratio), float(threshold), declared, 0.5 * dof, worst, float(rho)
+    )

@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 
-from .misfit import MisfitCheck
+from .misfit import AUTOCORRELATION_THRESHOLD, MisfitCheck
 from .uncertainty import Uncertainty
 
 
@@ -158,16 +158,18 @@ class IdentificationResult:
         ]
         if self.misfit is not None:
             m = self.misfit
-            noise = "declared noise" if m.declared else "noise the data imply"
-            lines.append(
-                f"  residuals {m.ratio:.3g} x the {noise} (mean square per degree of "
-                f"freedom; 1 at the noise floor, misfit above {m.threshold:g})"
-                + (
-                    f"; noise floor of the loss {m.noise_floor:.6g}"
-                    if m.declared
-                    else ""
+            if m.declared:
+                lines.append(
+                    f"  residuals {m.ratio:.3g} x the declared noise (mean square per "
+                    f"degree of freedom; 1 at the noise floor, misfit above "
+                    f"{m.threshold:g}); noise floor of the loss {m.noise_floor:.6g}"
                 )
-            )
+            else:
+                lines.append(
+                    f"  residuals {m.ratio:.3g} x the noise the data imply; lag-1 "
+                    f"autocorrelation {m.autocorrelation:.3g} (noise: about 0; "
+                    f"misfit above {AUTOCORRELATION_THRESHOLD:g})"
+                )
         if not self.stderr_meaningful:
             lines.append(
                 "  STANDARD ERRORS NOT MEANINGFUL: "
