@@ -374,10 +374,11 @@ def write_plots(scenario, experiments, result, outdir: pathlib.Path, args) -> li
     names = ["loss_history.png"]
     kwargs = scenario.options.kwargs()
     starts = result.initial_states or [(e.y_init, e.ydot_init) for e in experiments]
-    for k, (path, e, start) in enumerate(zip(args.data, experiments, starts), 1):
+    for k, (path, e, (y0, ydot0)) in enumerate(zip(args.data, experiments, starts), 1):
         traj = simulate(
             result.model,
-            *start,
+            y0,
+            ydot0,
             e.ts,
             forces=e.forces,
             throw=False,

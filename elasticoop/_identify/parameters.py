@@ -195,9 +195,10 @@ class FreeParameters(eqx.Module):
                         t.inverse(flat[k : k + 1], "")
                     except ValueError:
                         raise ValueError(
-                            f"{self.names[start + k]} = {flat[k]!r} is outside the "
-                            f"range of the {type(t).__name__} reparameterisation "
-                            f"({_range_text(t)}): start it from a value inside "
+                            f"{self.names[start + k]} = {float(flat[k])!r} is "
+                            f"outside the range of the {type(t).__name__} "
+                            f"reparameterisation ({_range_text(t)}): start it "
+                            f"from a value inside "
                             f"that range, or choose another transform"
                         ) from None
                 raise
