@@ -19,6 +19,12 @@ same simulation tolerances (rtol 1e-6, atol 1e-8, far below the noise):
 
 Wall times include compilation (each fit runs once in this process). Run
 `python benchmarks/identify.py [--quick] [--scipy-nfev N] [--json FILE]`.
+
+`python benchmarks/identify.py --cli [--json FILE]` instead times the two command
+lines a user runs on the shipped example (`elasticoop examples`): the documented
+fit (`--fit stiffness --axes x y z --init model`) and the fit with no option (the
+36 stiffnesses and dampings), each in a fresh process, with their status, loss
+and iterations.
 """
 
 import argparse
@@ -135,10 +141,9 @@ def _fit(model, exps, method, max_steps):
         WHERE,
         method=method,
         init="model",
-        max_steps=max_steps,
+        max_iterations=max_steps,
         progress=False,
-        sim_rtol=RTOL,
-        sim_atol=ATOL,
+        options=eo.SimulationOptions(rtol=RTOL, atol=ATOL),
     )
     wall = time.perf_counter() - t0
     out = {
@@ -298,14 +303,67 @@ def run(quick: bool, scipy_nfev: int | None = None) -> dict:
     }
 
 
+CLI_FITS = {
+    "documented example": ["--fit", "stiffness", "--axes", "x", "y", "z"]
+    + ["--init", "model"],
+    "no option (36 parameters)": [],
+}
+
+
+def run_cli() -> dict:
+    """Time `elasticoop identify` on the shipped example, each fit in a fresh
+    process (compilation included), as a user runs it."""
+    import pathlib
+    import subprocess
+    import tempfile
+
+    from elasticoop._examples import example_files
+
+    files = example_files()
+    scenario = pathlib.Path(str(files["plate_lift"]))
+    data = scenario.with_name("plate_lift_measured.csv")
+    out = {"device": str(jax.devices()[0]), "cpus": os.cpu_count()}
+    for name, options in CLI_FITS.items():
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = pathlib.Path(tmp) / "fit"
+            argv = [sys.executable, "-m", "elasticoop", "identify", str(scenario)]
+            argv += [str(data), *options, "-o", str(folder), "-q", "--no-plots"]
+            t0 = time.perf_counter()
+            done = subprocess.run(argv, capture_output=True, text=True)
+            wall = time.perf_counter() - t0
+            report = json.loads((folder / "report.json").read_text())
+        out[name] = {
+            "command": "elasticoop identify plate_lift.toml plate_lift_measured.csv "
+            + " ".join(options),
+            "exit": done.returncode,
+            "wall_s": wall,
+            "fit_s": report["wall_time_s"],
+            "status": report["status"],
+            "iterations": report["iterations"],
+            "loss": report["loss_history"][-1],
+        }
+        print(f"  {name}: {wall:.1f} s", file=sys.stderr, flush=True)
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--quick", action="store_true", help="smoke-test sizes")
+    parser.add_argument(
+        "--cli", action="store_true", help="time the shipped example's command lines"
+    )
     parser.add_argument(
         "--scipy-nfev", type=int, help="SciPy's max_nfev (default 3; 1 with --quick)"
     )
     parser.add_argument("--json")
     args = parser.parse_args()
+    if args.cli:
+        out = run_cli()
+        print(json.dumps(out, indent=1))
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=1)
+        return
     out = run(args.quick, args.scipy_nfev)
     print(out["problem"], "on", out["device"])
     print(

@@ -89,6 +89,7 @@ if typing.TYPE_CHECKING:
         linearize as linearize,
         load_distribution as load_distribution,
         modes as modes,
+        rest_state as rest_state,
         static_equilibrium as static_equilibrium,
         trajectory_load_distribution as trajectory_load_distribution,
     )

@@ -59,8 +59,11 @@ class IdentifySpec:
     - `connections`, `axes`: the connections (by name) and axes (coordinate names)
       whose stiffness and damping are fitted; `None`: all.
     - `bodies`: the bodies (by name) whose mass and inertia are fitted; `None`: all.
-    - `max_iterations`, `method`, `init`: passed to `identify` (as `max_steps`,
-      `method`, `init`).
+    - `max_iterations`, `method`, `init`: passed to `identify` (as
+      `max_iterations`, `method`, `init`).
+    - `initial`: how each experiment's initial state is set (`identify`'s
+      `initial`); `None`: `"equilibrium"` for a scenario that starts from its
+      equilibrium, `"frozen"` otherwise.
     """
 
     fit: tuple[str, ...] = ("stiffness", "damping")
@@ -70,6 +73,7 @@ class IdentifySpec:
     max_iterations: int = 100
     method: str = "levenberg-marquardt"
     init: str = "equation_error"
+    initial: str | None = None
 
 
 class Scenario(eqx.Module):
@@ -96,6 +100,9 @@ class Scenario(eqx.Module):
     description: str = eqx.field(static=True, default="")
     source: str | None = eqx.field(static=True, default=None)
     identify: IdentifySpec | None = eqx.field(static=True, default=None)
+    # `[initial] from` ("equilibrium": the run starts at rest in the static
+    # equilibrium of the model); None: the initial state as given
+    initial_from: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         self.options  # validates solver, rtol, atol and max_steps

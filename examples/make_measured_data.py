@@ -1,10 +1,15 @@
 """Make the measured-data example `elasticoop/scenarios/plate_lift_measured.csv`.
 
 The "measurements" are the example scenario `plate_lift.toml` simulated with grasps
-25 % stiffer than the scenario file says (the truth a fit
-should find), sampled at the scenario's output times, with Gaussian noise of known
-level (seeded, so the file is reproducible) and a few missing samples. Run from the
-repository root:
+25 % stiffer than the scenario file says (the truth a fit should find), made the way
+a real experiment makes them: the experimenter commands what the scenario file
+says (the grasp poses, the lift, and the feedforward forces, which `"hold"` derives
+from the file's nominal model), while the true system responds with its own
+stiffness: it starts at rest in its own static equilibrium (the plate hanging from
+the grasps held at their commanded poses), not in the nominal one. The motion is
+sampled at the scenario's output times, with Gaussian noise of known level (seeded,
+so the file is reproducible) and a few missing samples. Run from the repository
+root:
 
     python examples/make_measured_data.py [OUTPUT.csv]
 """
@@ -13,6 +18,7 @@ import pathlib
 import sys
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 import elasticoop as eo
@@ -37,13 +43,23 @@ def truth(scenario):
     )
 
 
+def truth_start(scenario, model):
+    """The true system's initial state: at rest in its own static equilibrium, the
+    grasps held at the commanded poses (those of the scenario), under the
+    commanded forces at rest at the start (numbers, as commanded)."""
+    y = scenario.y_init
+    forces = scenario.forces(scenario.ts[0], y, jnp.zeros_like(y))
+    return eo.rest_state(model, y, forces), jnp.zeros_like(y)
+
+
 def measured_table(scenario):
     """Header cells, the noise row and the sample rows (SI, angles in degrees)."""
     model = truth(scenario)
+    y_init, ydot_init = truth_start(scenario, model)
     traj = eo.simulate(
         model,
-        scenario.y_init,
-        scenario.ydot_init,
+        y_init,
+        ydot_init,
         scenario.ts,
         forces=scenario.forces,
         **scenario.options.kwargs(),
@@ -78,8 +94,10 @@ def write(path=OUTPUT):
         "# Measured-data example for plate_lift.toml (elasticoop identify).",
         "# Made by examples/make_measured_data.py: plate_lift simulated with "
         f"stiffness x{STIFFNESS_FACTOR:g} and damping x{DAMPING_FACTOR:g}",
-        f"# of the scenario file's values, plus Gaussian noise (seed {SEED}; the "
-        f"'sigma' row gives its levels); empty cells are missing samples.",
+        "# of the scenario file's values, starting at rest in its own equilibrium "
+        "under the commanded forces,",
+        f"# plus Gaussian noise (seed {SEED}; the 'sigma' row gives its levels); "
+        f"empty cells are missing samples.",
     ]
     lines = comment + [",".join(header), ",".join(noise)] + [",".join(r) for r in rows]
     pathlib.Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")

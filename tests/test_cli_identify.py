@@ -143,18 +143,22 @@ def test_shipped_measured_data_is_what_the_script_makes():
     np.testing.assert_allclose(np.array(shipped), np.array(made), rtol=1e-7, atol=1e-9)
 
 
-@pytest.mark.slow
-def test_identify_the_shipped_example_moves_towards_the_truth(tmp_path):
+@pytest.mark.slow  # the documented fit, to convergence
+def test_identify_the_shipped_example_recovers_its_truth(tmp_path):
+    """The README's command on the shipped example: every estimate with a finite
+    standard error lies within 3 standard errors of the truth the data were made
+    from (6250 on every axis). Old: 3.1 standard errors off (`plate-left.z 10017 ±
+    1213`), because the data started from the truth's equilibrium while the fit
+    froze the start's, and parameters flagged not identifiable were held at a wrong
+    value, with conditional standard errors."""
     maker = make_measured_data()
     out = tmp_path / "fit"
-    # the README's command (the translational stiffnesses; the data's damping is
-    # the scenario's), at 8 iterations
     paths = {
         "my_study/plate_lift.toml": str(PLATE),
         "my_study/plate_lift_measured.csv": str(MEASURED),
         "results/plate_fit": str(out),
     }
-    argv = readme_command("identify", paths, max_iterations=8)
+    argv = readme_command("identify", paths)
     assert argv[1:3] == [str(PLATE), str(MEASURED)] and str(out) in argv
     code = main([*argv, "-q"])
     assert code == 0
@@ -166,35 +170,32 @@ def test_identify_the_shipped_example_moves_towards_the_truth(tmp_path):
         "report.txt",
     ]
     report = json.loads((out / "report.json").read_text())
+    assert report["status"] == "converged" and report["stderr_meaningful"]
+    assert report["initial_state_rule"] == "equilibrium"
+    assert 0.7 < report["misfit"]["ratio"] < 1.3  # at the noise floor
     start = load_scenario(PLATE)
     fitted = load_scenario(out / "fitted_scenario.toml")  # ready to run
     truth = maker.truth(start)
-    assert report["loss_history"][-1] < 0.5 * report["loss_history"][0]
     rows = {p["name"]: p for p in report["parameters"]}
     assert len(rows) == 9
     determined = 0
     for k, connection in enumerate(start.connection_names):
         for c, axis in enumerate("xyz"):
             row = rows[f"stiffness[{connection}].{axis}"]
-            s0 = float(start.model.stiffness[k, c])
             s1 = float(fitted.model.stiffness[k, c])
             assert row["estimate"] == pytest.approx(s1, rel=1e-12)
             true = float(truth.stiffness[k, c])
-            if not row["identifiable"]:  # held at the scenario's value
-                assert s1 == s0, (connection, axis)
-            # The others are fitted with the held ones taken as known; those are
-            # 25 % off here, which biases the weakly determined estimates by a few
-            # standard errors. The well determined ones must approach the truth.
-            if row["identifiable"] and row["relative_stderr"] < 0.1:
-                determined += 1  # well determined: closer to the truth than s0
-                assert abs(s1 - true) < abs(s0 - true), (connection, axis)
+            if np.isfinite(row["stderr"]):
+                assert abs(s1 - true) < 3 * row["stderr"], (connection, axis)
+                determined += row["relative_stderr"] < 0.1
+            else:
+                assert not row["identifiable"]
     assert determined >= 3
     np.testing.assert_array_equal(fitted.model.damping, start.model.damping)
-    for name in ("stiffness",):  # the angular axes keep their values
-        np.testing.assert_array_equal(
-            np.asarray(getattr(fitted.model, name))[:, 3:],
-            np.asarray(getattr(start.model, name))[:, 3:],
-        )
+    np.testing.assert_array_equal(
+        np.asarray(fitted.model.stiffness)[:, 3:],
+        np.asarray(start.model.stiffness)[:, 3:],
+    )
 
 
 def test_notes_name_parameters_as_the_report_does():

@@ -14,10 +14,11 @@ import numpy as np
 from .._config import DataFileError, load_experiment
 from .._config.identify_settings import (
     FitSelection,
+    derived_feedforward,
     fit_selection,
     identify_spec_problems,
 )
-from .._config.schema import FITTED_QUANTITIES, IDENTIFY_METHODS
+from .._config.schema import FITTED_QUANTITIES, IDENTIFY_METHODS, INITIAL_RULES
 from .._identify import identify
 from .._io.fitted_scenario import fitted_scenario_text
 from .._io.strict_json import strict_json
@@ -37,7 +38,10 @@ from ._common import (
 )
 
 NAME = "identify"
+# The fit ended where the model does not explain the data (status "misfit").
+EXIT_MISFIT = 4
 _START_FAILURE = "the simulation at the starting parameters fails"
+_SENSITIVITY_FAILURE = "the simulation with sensitivities fails at the start"
 
 
 def register(subparsers) -> None:
@@ -106,6 +110,15 @@ def register(subparsers) -> None:
         "(equation_error, the default) or from the scenario's values (model)",
     )
     parser.add_argument(
+        "--initial",
+        choices=INITIAL_RULES,
+        help="how each data file's initial state is set: equilibrium (at rest in "
+        "the static equilibrium of the parameters evaluated, recomputed at every "
+        'step of the fit; the default for [initial] from = "equilibrium"), '
+        "frozen (the scenario's initial state as it is; the default otherwise), "
+        "data (the first samples) or fitted (estimated with the parameters)",
+    )
+    parser.add_argument(
         "--no-velocities",
         action="store_true",
         help="ignore the velocity samples of the data files",
@@ -126,6 +139,7 @@ def fit_settings(scenario, args) -> IdentifySpec:
         "max_iterations": args.max_iterations,
         "method": args.method,
         "init": args.init,
+        "initial": args.initial,
     }
     given = {k: v for k, v in overrides.items() if v is not None}
     spec = dataclasses.replace(
@@ -157,6 +171,16 @@ def fit_settings(scenario, args) -> IdentifySpec:
             )
         )
     return spec
+
+
+def initial_rule_of(scenario, spec: IdentifySpec) -> str:
+    """The initial-state rule of the fit: `spec.initial`, else `"equilibrium"` for
+    a scenario that starts from its equilibrium and `"frozen"` otherwise."""
+    if spec.initial is not None:
+        return spec.initial
+    if getattr(scenario, "initial_from", None) == "equilibrium":
+        return "equilibrium"
+    return "frozen"
 
 
 def load_data(scenario, args) -> list:
@@ -195,7 +219,7 @@ def execute(args) -> int:
         f"{len(selection.names)} parameters from {len(experiments)} data file"
         f"{'s' if len(experiments) != 1 else ''}",
     )
-    options = scenario.options
+    initial = initial_rule_of(scenario, spec)
     try:
         result = identify(
             scenario.model,
@@ -204,35 +228,51 @@ def execute(args) -> int:
             mask=selection.mask,
             method=spec.method,
             init=spec.init,
-            max_steps=spec.max_iterations,
+            max_iterations=spec.max_iterations,
             progress=not args.quiet,
-            solver=options.diffrax_solver(),
-            sim_rtol=options.rtol,
-            sim_atol=options.atol,
+            options=scenario.options,
+            initial=initial,
+            body_names=scenario.names,
         )
     except ValueError as err:
-        if str(err).startswith(_START_FAILURE):
+        if str(err).startswith(_START_FAILURE) or str(err).startswith(
+            _SENSITIVITY_FAILURE
+        ):
             files = ", ".join(args.data)
             print(f"elasticoop {NAME}: {err} (data files: {files})", file=sys.stderr)
             return EXIT_SIMULATION
         raise UserError(str(err)) from err
-    result = dataclasses.replace(
-        result,
-        names=selection.names,
-        notes=tuple(
-            renamed(note, result.names, selection.names) for note in result.notes
-        ),
+    notes = [renamed(note, result.names, selection.names) for note in result.notes]
+    rule = derived_feedforward(scenario)
+    if rule is not None:
+        numbers = np.asarray(scenario.forces.feedforward)
+        notes.append(
+            f'the pose tracking\'s feedforward = "{rule}" is what the experimenter '
+            f"applied: frozen as the numbers of the scenario as given (its nominal "
+            f"model), not recomputed with the parameters; translational parts "
+            + "; ".join(
+                f"{name} {np.array2string(row[:3], precision=4)} N"
+                for name, row in zip(scenario.names[1:], numbers)
+            )
+        )
+    result = dataclasses.replace(result, names=selection.names, notes=tuple(notes))
+    paths = write_results(
+        scenario, experiments, result, selection, folder, args, initial
     )
-    paths = write_results(scenario, experiments, result, selection, folder, args)
     say(args, result.report())
     say(args, "wrote " + ", ".join(str(p) for p in paths))
     if result.status == "failed":
         print(f"elasticoop {NAME}: the fit failed: {result.reason}", file=sys.stderr)
         return EXIT_SIMULATION
+    if result.status == "misfit":
+        print(f"elasticoop {NAME}: misfit: {result.reason}", file=sys.stderr)
+        return EXIT_MISFIT
     return EXIT_OK
 
 
-def report_data(scenario, result, selection: FitSelection, data_files) -> dict:
+def report_data(
+    scenario, result, selection: FitSelection, data_files, initial="frozen"
+) -> dict:
     """The report as a dictionary (written as `report.json`)."""
     unc = result.uncertainty
     return {
@@ -250,6 +290,27 @@ def report_data(scenario, result, selection: FitSelection, data_files) -> dict:
         "wall_time_s": result.wall_time,
         "loss_history": result.loss_history,
         "noise_scale": unc.noise_scale,
+        "initial_state_rule": initial,
+        "stderr_meaningful": result.stderr_meaningful,
+        "misfit": None
+        if result.misfit is None
+        else {
+            "ratio": result.misfit.ratio,
+            "threshold": result.misfit.threshold,
+            "declared_noise": result.misfit.declared,
+            "noise_floor": result.misfit.noise_floor,
+            "autocorrelation": result.misfit.autocorrelation,
+            "worst": [
+                {
+                    "channel": result.misfit.channel_name(
+                        w, scenario.names, scenario.model.convention
+                    ),
+                    "ratio": w.ratio,
+                    "time": w.time,
+                }
+                for w in result.misfit.worst
+            ],
+        },
         "uncertainty_note": unc.reason,
         "notes": list(result.notes),
         "parameters": [
@@ -268,9 +329,11 @@ def report_data(scenario, result, selection: FitSelection, data_files) -> dict:
     }
 
 
-def write_results(scenario, experiments, result, selection, folder, args) -> list:
-    """Write the fitted scenario, the report and the plots into `folder` as a
-    whole; returns the paths."""
+def write_results(
+    scenario, experiments, result, selection, folder, args, initial="frozen"
+) -> list:
+    """Write the fitted scenario (with the fit's initial-state rule `initial`),
+    the report and the plots into `folder` as a whole; returns the paths."""
     when = datetime.datetime.now().isoformat(timespec="seconds")
     header = (
         f"{scenario.name}: fitted by elasticoop identify on {when}\n"
@@ -279,9 +342,17 @@ def write_results(scenario, experiments, result, selection, folder, args) -> lis
         f"estimates and standard errors in report.txt beside this file."
     )
     files = {
-        "fitted_scenario.toml": fitted_scenario_text(scenario, result.model, header),
+        "fitted_scenario.toml": fitted_scenario_text(
+            scenario,
+            result.model,
+            header,
+            initial=initial,
+            initial_state=result.initial_states[0] if result.initial_states else None,
+        ),
         "report.txt": result.report() + "\n",
-        "report.json": strict_json(report_data(scenario, result, selection, args.data)),
+        "report.json": strict_json(
+            report_data(scenario, result, selection, args.data, initial)
+        ),
     }
     with folder.writing() as staging:
         for name, text in files.items():
@@ -295,14 +366,19 @@ def write_results(scenario, experiments, result, selection, folder, args) -> lis
 def write_plots(scenario, experiments, result, outdir: pathlib.Path, args) -> list:
     from .._plotting import plot_fit, plot_loss_history
 
-    plot_loss_history(result.loss_history).savefig(outdir / "loss_history.png", dpi=110)
+    misfit = result.misfit
+    floor = misfit.noise_floor if misfit is not None and misfit.declared else None
+    plot_loss_history(result.loss_history, noise_floor=floor).savefig(
+        outdir / "loss_history.png", dpi=110
+    )
     names = ["loss_history.png"]
     kwargs = scenario.options.kwargs()
-    for k, (path, e) in enumerate(zip(args.data, experiments), start=1):
+    starts = result.initial_states or [(e.y_init, e.ydot_init) for e in experiments]
+    for k, (path, e, (y0, ydot0)) in enumerate(zip(args.data, experiments, starts), 1):
         traj = simulate(
             result.model,
-            e.y_init,
-            e.ydot_init,
+            y0,
+            ydot0,
             e.ts,
             forces=e.forces,
             throw=False,

@@ -482,6 +482,18 @@ class _Builder:
         feedforward = np.zeros((m, 6))
         if pose.feedforward == "weight":
             feedforward[:, 2] = masses.sum() * self.model_table.gravity / m
+        elif isinstance(pose.feedforward, dict):  # the numbers themselves
+            for name, values in pose.feedforward.items():
+                k = self.index.get(name) if self.index else None
+                if not k:  # unknown, or the object (index 0)
+                    self.add(
+                        "[forces.pose_tracking.feedforward]",
+                        name,
+                        "not a contact body (feedforward acts on the contact "
+                        f"bodies: {', '.join(self.names[1:])})",
+                    )
+                    continue
+                feedforward[k - 1] = values
         # "hold": set once the model and the initial state are known
         self.hold_feedforward = pose.feedforward == "hold"
         return PoseTracking(
@@ -590,6 +602,7 @@ class _Builder:
             max_iterations=table.max_iterations,
             method=table.method,
             init=table.init,
+            initial=table.initial,
         )
         labels = conns[1] if conns is not None else ()
         convention = self.model_table.convention if self.model_table else "zxz"
@@ -684,6 +697,7 @@ class _Builder:
             description=self.info.description,
             source=self.source,
             identify=identify,
+            initial_from=self.initial_from,
         )
 
 

@@ -3,6 +3,8 @@ options that override it) checked against a scenario, and turned into the
 `where` and `mask` arguments of `identify` with readable parameter names."""
 
 import dataclasses
+import pathlib
+import tomllib
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -145,3 +147,20 @@ def _leaf(model, quantity):
     if quantity == "inertia":
         return model.bodies.inertia
     return getattr(model, quantity)
+
+
+def derived_feedforward(scenario) -> str | None:
+    """The pose tracking's `feedforward` rule (`"hold"`, `"weight"`) when the
+    scenario derives the feedforward from its model, else `None` (read from the
+    scenario's file)."""
+    if not scenario.source:
+        return None
+    try:
+        raw = tomllib.loads(pathlib.Path(scenario.source).read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError):
+        return None
+    pose = raw.get("forces", {}).get("pose_tracking")
+    if not isinstance(pose, dict):
+        return None
+    rule = pose.get("feedforward", "weight")
+    return rule if rule in ("hold", "weight") else None

@@ -27,9 +27,9 @@ NOISE_ROW = "sigma"
 _DEGREE = math.pi / 180
 UNITS = {
     "time": {"s": 1.0},
-    "length": {"m": 1.0},
+    "length": {"m": 1.0, "cm": 1e-2, "mm": 1e-3},
     "angle": {"rad": 1.0, "radians": 1.0, "deg": _DEGREE, "degrees": _DEGREE},
-    "speed": {"m/s": 1.0},
+    "speed": {"m/s": 1.0, "cm/s": 1e-2, "mm/s": 1e-3},
     "angle_rate": {
         "rad/s": 1.0,
         "radians/s": 1.0,

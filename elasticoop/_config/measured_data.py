@@ -8,6 +8,8 @@ grid). The formats are described in `docs/data_files.md`.
 
 import pathlib
 
+import numpy as np
+
 from .._forces import SampledForce
 from .._identify import Experiment
 from .data_files import existing_file
@@ -71,6 +73,7 @@ def load_experiment(path, scenario, *, velocities: bool = True) -> Experiment:
 
 
 def _experiment(data: MeasuredData, scenario, source, velocities) -> Experiment:
+    _check_overlap(data, scenario, source)
     forces = scenario.forces
     if data.forces is not None:
         rows = data.forces if data.force_on_object else data.forces[:, 1:]
@@ -87,9 +90,34 @@ def _experiment(data: MeasuredData, scenario, source, velocities) -> Experiment:
             sigma=data.sigma,
             ydot=ydot,
             sigma_ydot=sigma_ydot,
+            # a scenario that starts at rest in its equilibrium: the experiment
+            # too (the contact bodies held at their poses)
+            rest=getattr(scenario, "initial_from", None) == "equilibrium" or None,
         )
     except ValueError as err:
         raise DataFileError(
             source,
             [DataProblem("", "", f"the samples cannot form an experiment: {err}")],
         ) from None
+
+
+def _check_overlap(data: MeasuredData, scenario, source) -> None:
+    """The data's time span must overlap the scenario's `[time]` span (the
+    simulation starts from the scenario's initial state at the data's first time,
+    under the scenario's forces)."""
+    ts = np.asarray(data.ts)
+    start, stop = float(scenario.ts[0]), float(scenario.ts[-1])
+    first, last = float(ts[0]), float(ts[-1])
+    if last < start or first > stop:
+        raise DataFileError(
+            source,
+            [
+                DataProblem(
+                    "t",
+                    "",
+                    f"the data's times {first:g} to {last:g} s do not overlap the "
+                    f"scenario's [time] span {start:g} to {stop:g} s (scenario "
+                    f"'{scenario.name}'): the data belong to another time axis",
+                )
+            ],
+        )

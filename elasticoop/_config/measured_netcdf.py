@@ -105,6 +105,10 @@ def read_measured_netcdf(path: pathlib.Path, source: str, scenario) -> MeasuredD
     return MeasuredData(ts, arrays["y"], arrays.get("ydot"), sigma, sigma_dot)
 
 
+# Length units of the translations (to metres).
+_LENGTH_FACTORS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
+
+
 def _angle_factors(ds, file_coords, add) -> dict[str, float]:
     """Factor to SI per coordinate, from the `coordinate_unit` coordinate (SI when
     it is missing)."""
@@ -114,7 +118,7 @@ def _angle_factors(ds, file_coords, add) -> dict[str, float]:
     for c, unit in zip(file_coords, ds["coordinate_unit"].values):
         unit = str(unit)
         translation = c in TRANSLATION_NAMES
-        accepted = ("m",) if translation else tuple(_ANGLE_FACTORS)
+        accepted = tuple(_LENGTH_FACTORS) if translation else tuple(_ANGLE_FACTORS)
         if unit not in accepted:
             add(
                 "coordinate_unit",
@@ -123,7 +127,7 @@ def _angle_factors(ds, file_coords, add) -> dict[str, float]:
                 f"{' or '.join(repr(a) for a in accepted)}",
             )
             continue
-        factors[c] = 1.0 if translation else _ANGLE_FACTORS[unit]
+        factors[c] = _LENGTH_FACTORS[unit] if translation else _ANGLE_FACTORS[unit]
     return factors
 
 

@@ -174,13 +174,16 @@ class PoseTrackingTable(Table):
     """`[forces.pose_tracking]`: PD control of the grasp poses along a lift, plus a
     constant feedforward: `"weight"` (an equal share of the total weight on each
     grasp, along z), `"hold"` (the forces that hold each contact body at rest in
-    the initial state, $\\partial\\Pi/\\partial Y_i - G_i$) or `"none"`."""
+    the initial state, $\\partial\\Pi/\\partial Y_i - G_i$), `"none"`, or the
+    numbers themselves: a table of generalized forces by contact-body name (six
+    numbers each, forces [N] then generalized torques [N m]; a body left out gets
+    none), as `elasticoop identify` writes the feedforward it held fixed."""
 
     lift_height: Number
     lift_time: Positive
     kp: NonNegative6
     kd: NonNegative6
-    feedforward: Literal["weight", "hold", "none"] = "weight"
+    feedforward: Literal["weight", "hold", "none"] | dict[Name, Vector6] = "weight"
 
 
 class ForcesTable(Table):
@@ -240,6 +243,10 @@ class PrescribedTable(Table):
 
 FITTED_QUANTITIES = ("stiffness", "damping", "mass", "inertia")
 IDENTIFY_METHODS = ("levenberg-marquardt", "lbfgs")
+# How `elasticoop identify` sets each experiment's initial state (see `identify`'s
+# `initial`); default: "equilibrium" for `[initial] from = "equilibrium"`, else
+# "frozen".
+INITIAL_RULES = ("equilibrium", "frozen", "data", "fitted")
 
 
 class IdentifyTable(Table):
@@ -256,6 +263,7 @@ class IdentifyTable(Table):
     max_iterations: Annotated[int, Field(ge=1, le=100_000)] = 100
     method: Literal[IDENTIFY_METHODS] = "levenberg-marquardt"  # type: ignore[valid-type]
     init: Literal["equation_error", "model"] = "equation_error"
+    initial: Literal[INITIAL_RULES] | None = None  # type: ignore[valid-type]
 
 
 # Top-level layout: table name -> (schema, shape): "table", "array" (array of

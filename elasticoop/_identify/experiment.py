@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._analysis import contact_bodies_held
 from .._forces import AbstractForce, check_force
 from .._validation import check_times
 from .initial_state import initial_state_from_data
@@ -45,6 +46,14 @@ class Experiment(eqx.Module):
       `ydot` when `sigma` is given).
     - `yddot`: optional measured $\\ddot Y(t)$ (used only by the equation-error
       initialiser).
+    - `rest`: whether the experiment started at rest in static equilibrium:
+      `None` (default: not known to), `True` (the contact bodies held at their
+      poses in `y_init`, the object free, as `[initial] from = "equilibrium"`
+      holds them) or a bool `(bodies, 6)` array of the held coordinates. With it,
+      `identify` (its default `initial="auto"`) recomputes the initial state at
+      every evaluation of the fit as the rest state of the parameters evaluated
+      (`rest_state`, under the applied forces at rest at $t_0$, as numbers), with
+      `y_init` holding the held poses and the start of the free coordinates.
     - `window`, `polyorder`: the differentiator that takes a missing `y_init` or
       `ydot_init` from the data (not stored).
 
@@ -61,6 +70,8 @@ class Experiment(eqx.Module):
     ydot: jax.Array | None
     sigma_ydot: jax.Array | None
     yddot: jax.Array | None
+    # the held coordinates of a start at rest (see `rest`), or None
+    rest: tuple[tuple[bool, ...], ...] | None = eqx.field(static=True)
 
     def __init__(
         self,
@@ -76,6 +87,7 @@ class Experiment(eqx.Module):
         yddot=None,
         window: int = 21,
         polyorder: int = 4,
+        rest=None,
     ):
         ts = check_times(ts, "Experiment.ts")
         n_times = ts.shape[0]
@@ -121,6 +133,7 @@ class Experiment(eqx.Module):
         self.ydot = None if ydot is None else jnp.asarray(ydot)
         self.sigma_ydot = None if sigma_ydot is None else jnp.asarray(sigma_ydot)
         self.yddot = None if yddot is None else jnp.asarray(yddot)
+        self.rest = _rest(rest, n_bodies)
 
     @property
     def n_bodies(self) -> int:
@@ -133,6 +146,23 @@ class Experiment(eqx.Module):
         if self.ydot is not None:
             n += int(np.sum(np.isfinite(np.asarray(self.ydot))))
         return n
+
+
+def _rest(value, n_bodies) -> tuple[tuple[bool, ...], ...] | None:
+    if value is None or value is False:
+        return None
+    if value is True:
+        mask = contact_bodies_held(n_bodies)
+    else:
+        mask = np.asarray(value)
+        if mask.dtype != np.bool_ or mask.shape != (n_bodies, 6):
+            raise ValueError(
+                f"Experiment.rest must be None, True or a bool array of shape "
+                f"({n_bodies}, 6) (the held coordinates), got {value!r}"
+            )
+        if mask.all():
+            raise ValueError("Experiment.rest holds every coordinate: none is free")
+    return tuple(tuple(bool(v) for v in row) for row in mask)
 
 
 def _array(value, name):

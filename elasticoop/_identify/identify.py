@@ -1,6 +1,8 @@
 """`identify`: fit free model parameters to measured motion (output error)."""
 
+import dataclasses
 import time
+import warnings
 from typing import Any
 
 import diffrax
@@ -16,7 +18,8 @@ from .._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
 from .._status import Status
 from .equation_error import equation_error
 from .experiment import check_experiments
-from .initial_state import fitted_parts, initial_state_names
+from .initial_state import fitted_parts, initial_rule, initial_state_names
+from .misfit import MISFIT_THRESHOLD, misfit_check
 from .optimisers import Trace, levenberg_marquardt, optax_minimise
 from .parameters import free_parameters
 from .residuals import (
@@ -41,6 +44,7 @@ METHODS = ("levenberg-marquardt", "lbfgs")
 # Significance level of the test that decides whether parameters flagged not
 # identifiable may be held at their start (`_holding_fits`).
 HOLD_TEST_LEVEL = 0.01
+DEFAULT_MAX_ITERATIONS = 100
 
 
 def identify(
@@ -51,14 +55,12 @@ def identify(
     method="levenberg-marquardt",
     init: str = "equation_error",
     transform="log",
-    max_steps: int = 100,
+    max_iterations: int | None = None,
     xtol: float = 1e-8,
     ftol: float = 1e-12,
     progress: bool = True,
+    options: SimulationOptions | None = None,
     solver: diffrax.AbstractSolver | None = None,
-    sim_rtol: float = 1e-8,
-    sim_atol: float = 1e-10,
-    max_sim_steps: int | None = None,
     gimbal_tol: float = GIMBAL_TOL,
     link_tol: float = LINK_TOL,
     window: int = 21,
@@ -66,9 +68,15 @@ def identify(
     rcond: float = 1e-8,
     max_relative_stderr: float = 0.5,
     mask=None,
+    initial: Validated[str] = "auto",
     fit_initial: Validated[str] = "none",
-    hold_unidentifiable: Validated[bool] = True,
+    hold_unidentifiable: Validated[bool] = False,
+    misfit_threshold: float = MISFIT_THRESHOLD,
     body_names=None,
+    max_steps: int | None = None,
+    sim_rtol: float | None = None,
+    sim_atol: float | None = None,
+    max_sim_steps: int | None = None,
 ) -> IdentificationResult:
     """Fit the free parameters of `model` to measured motion by output error.
 
@@ -97,14 +105,15 @@ def identify(
       model's values otherwise: with noisy data the differentiated samples can
       spoil the linear estimate, and the start that fits better is kept (a note
       in the result says which). If the fit from that start stops without
-      lowering its loss (other than at `max_steps`; e.g. a stiff start whose
+      lowering its loss (other than at `max_iterations`; e.g. a stiff start whose
       sensitivities are too inaccurate to give a descent direction), it is run
       again from the other start, and the fit with the lower loss is returned
       (a note says so).
     - `transform`: reparameterisation of the free leaves: `"log"` (default),
       `"softplus"`, `"identity"`, an `AbstractTransform` such as
       `Bounded(lower, upper)`, or one of these per selected leaf.
-    - `max_steps`: the most optimiser steps (Levenberg-Marquardt: trial steps).
+    - `max_iterations`: the most optimiser iterations (Levenberg-Marquardt: trial
+      steps); default 100. (`max_steps` is its deprecated name.)
     - `xtol`, `ftol`: the fit has converged after an accepted step that changes
       no entry of $u$ by more than `xtol` (for log-parameters: a relative change),
       or lowers the loss by at most `ftol` times the loss; or when a dozen trial
@@ -114,16 +123,20 @@ def identify(
       `PLAIN_GTOL` (1e-6) times the loss at the start as well; otherwise it
       stops as `"stalled"`.
     - `progress`: print iteration, loss and gradient norm while fitting.
-    - `solver`, `sim_rtol`, `sim_atol`, `max_sim_steps`, `gimbal_tol`, `link_tol`:
-      passed to `simulate` (as `solver`, `rtol`, `atol`, `max_steps`, ...).
-      `max_sim_steps=None` (default) allows the start's simulations 100 000
-      steps and every later one 8x the steps the current point needed (at least
+    - `options`: the `SimulationOptions` of every simulation of the fit (solver,
+      `rtol`, `atol`, `max_steps`, `gimbal_tol`, `link_tol`; default: `tsit5`,
+      1e-8, 1e-10, 100 000). The start's simulations may take `max_steps` solver
+      steps, every later one 8x the steps the current point needed (at least
       4096, rounded up to a power of 2, so that fits of similar problems share
       their compiled functions; raised, and the fit's functions compiled anew,
-      whenever an accepted point needs more than an eighth of it, up to 100 000):
-      a trial point that needs more is far off (much stiffer) and is rejected
-      like a failed simulation, instead of costing a long integration. A given
-      `max_sim_steps` is the budget of every simulation.
+      whenever an accepted point needs more than an eighth of it, up to
+      `max_steps`): a trial point that needs more is far off (much stiffer) and
+      is rejected like a failed simulation, instead of costing a long
+      integration.
+    - `solver`, `gimbal_tol`, `link_tol`: set those of the default options
+      (without `options`). `sim_rtol`, `sim_atol`, `max_sim_steps` are deprecated
+      (a `DeprecationWarning`): pass `options`; a given `max_sim_steps` is the
+      budget of every simulation.
     - `window`, `polyorder`: Savitzky-Golay smoothing of the equation-error start.
     - `rcond`, `max_relative_stderr`: identifiability thresholds (see
       `gauss_newton_uncertainty`).
@@ -131,6 +144,27 @@ def identify(
       structure of `where(model)`, each shaped like its leaf (`None` for a whole
       leaf), e.g. `(k_mask, None)`; the other entries keep the model's values,
       and `stderr` is NaN there. Default: every entry is free.
+    - `initial`: how each experiment's initial state is set. What the
+      experimenter applied (the experiment's forces, e.g. a feedforward the
+      scenario derived from its model) stays as given; what the system did
+      follows the parameters:
+      - `"auto"` (default): experiments that started at rest in static
+        equilibrium (`Experiment.rest`, set by `load_experiment` for a scenario
+        with `[initial] from = "equilibrium"`) start from the rest state of the
+        parameters being evaluated, recomputed at every evaluation of the fit
+        (`rest_state`; its sensitivities by the implicit function theorem), the
+        held coordinates at their poses in `y_init`, at rest; the others from
+        their `y_init`, `ydot_init`.
+      - `"equilibrium"`: every experiment so (those without `Experiment.rest`
+        with the contact bodies held).
+      - `"frozen"`: every experiment from its `y_init`, `ydot_init` as given
+        (the old behaviour: an equilibrium of the starting model stays fixed,
+        which biases the fit when the data started from the equilibrium of other
+        parameters).
+      - `"data"`: from each experiment's first samples (`initial_state_from_data`
+        with `window`, `polyorder`).
+      - `"fitted"`: estimated with the parameters (`fit_initial="state"`).
+      A note in the result says which rule was applied.
     - `fit_initial`: which part of each experiment's initial state is estimated
       together with the parameters: `"none"` (default: `Experiment.y_init` and
       `ydot_init` are known), `"rates"` ($\\dot Y(t_0)$), `"positions"`
@@ -139,9 +173,13 @@ def identify(
       `result.initial_states`, their standard errors in
       `result.initial_state_stderr`, and the parameters' standard errors are
       marginal over them (see `initial_state`).
-    - `hold_unidentifiable`: hold the parameters the data do not determine at
-      their start. When the fit ends having lowered its loss (a fit that never
-      left its start has nothing to hold) with parameters flagged not
+    - `hold_unidentifiable`: `False` (default) keeps every parameter in the fit:
+      the ones the data do not determine are flagged, and every standard error
+      is marginal (over all the others, flagged ones included; infinite along a
+      direction the data do not determine at all). `True` holds the parameters
+      the data do not determine at their start. When the fit ends having
+      lowered its loss (a fit that never left its start has nothing to hold)
+      with parameters flagged not
       identifiable (see `gauss_newton_uncertainty`), they are set to their
       values in `model` (the optimiser's start where those are outside the
       transform's range) and the others are fitted again, until no further
@@ -153,11 +191,20 @@ def identify(
       keep their fitted values, flagged, and a note says so. `result.held` marks
       the held ones and the report says so. Holding, not a penalty towards the
       start, leaves the estimates and standard errors of the others those of a
-      fit in which the held values are known; their standard errors do not
-      include the held values' uncertainty. `False` returns the optimiser's
-      values, flagged.
-    - `body_names`: names of the bodies in the report's initial-state entries
-      (default `object, contact1, ...`).
+      fit in which the held values are known: their standard errors are
+      conditional on the held values and do not include their uncertainty (the
+      report says so for each estimate).
+    - `misfit_threshold`: after the fit, the residuals are compared with the
+      noise (`misfit`): where their mean square exceeds this multiple of the
+      noise variance (the declared `Experiment.sigma`, or without it the noise
+      the data's own second differences imply), the model does not explain the
+      data: `status` is `"misfit"` (not converged), and the report marks the
+      standard errors as not meaningful and names the worst channels and times.
+      Default `MISFIT_THRESHOLD` (4: a residual twice the noise, RMS).
+    - `body_names`: names of the bodies in the parameters' names (e.g.
+      `stiffness[plate-front].x`, `mass[plate]`; default: their indices,
+      `stiffness[0-1].x`, `bodies.mass[0]`) and in the report's initial-state
+      entries (default `object, contact1, ...`).
 
     **Returns:** an `IdentificationResult` (`.model`, `.stderr`, `.loss_history`,
     `.converged`, `.table`, `.held`, `.initial_states`, `.report()`, ...).
@@ -173,42 +220,36 @@ def identify(
     (and a `RuntimeWarning`).
     """
     start_time = time.perf_counter()
+    max_iterations = _iterations(max_iterations, max_steps)
+    options, fixed_budget = _simulation_options(
+        options, solver, sim_rtol, sim_atol, max_sim_steps, gimbal_tol, link_tol
+    )
     experiments = check_experiments(model, experiments)
-    free = free_parameters(model, where, transform, mask)
-    optimizer, method_name = _optimizer(method)
-    fit_parts = fitted_parts(fit_initial)
     names_of_bodies = checked_body_names(body_names, model.n_bodies)
+    named = None if body_names is None else names_of_bodies
+    free = free_parameters(model, where, transform, mask, named)
+    optimizer, method_name = _optimizer(method)
+    notes: list[str] = []
+    experiments, fit_initial, rest = initial_rule(
+        initial, fit_initial, experiments, window, polyorder, notes
+    )
+    fit_parts = fitted_parts(fit_initial)
     if not isinstance(hold_unidentifiable, bool):
         raise ValueError(
             f"hold_unidentifiable must be True or False, got {hold_unidentifiable!r}"
         )
     value: float
-    for name, value in (("max_steps", max_steps),):
-        if not (isinstance(value, int) and value >= 1):
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
     for name, value in (("xtol", xtol), ("ftol", ftol)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a number >= 0, got {value!r}")
-    check_identifiability_thresholds(rcond, max_relative_stderr)
-    if max_sim_steps is not None and not (
-        isinstance(max_sim_steps, int) and max_sim_steps >= 1
-    ):
+    if not (isinstance(misfit_threshold, int | float) and misfit_threshold > 1):
         raise ValueError(
-            f"max_sim_steps must be a positive integer or None, got {max_sim_steps!r}"
+            f"misfit_threshold must be a number above 1, got {misfit_threshold!r}"
         )
+    check_identifiability_thresholds(rcond, max_relative_stderr)
     if init not in ("equation_error", "model"):
         raise ValueError(f"init must be 'equation_error' or 'model', got {init!r}")
-    notes = []
-    options = SimulationOptions(
-        solver="tsit5" if solver is None else solver,
-        rtol=float(sim_rtol),
-        atol=float(sim_atol),
-        max_steps=START_MAX_STEPS if max_sim_steps is None else max_sim_steps,
-        gimbal_tol=float(gimbal_tol),
-        link_tol=float(link_tol),
-        owner="identify",
-    )
-    problem = make_problem(model, free, experiments, options, fit_parts)
+    problem = make_problem(model, free, experiments, options, fit_parts, rest)
     no_correction = np.zeros(problem.n_initial)
     start = free.current(model)
     candidates = []  # (label, parameters), evaluated by their simulated loss
@@ -240,19 +281,20 @@ def identify(
     try:
         u_start = free.unconstrained(start)
         candidates.append(("the model's values", start))
-    except ValueError:
+    except ValueError as err:
         if init == "model":
             raise
+        notes.append(f"the model's values are no start ({err})")
     evaluated = []
     u: np.ndarray | jax.Array
     for label, p in candidates:
         u = np.concatenate([free.unconstrained(p), no_correction])
-        value, runs = _evaluate(jnp.asarray(u), problem)  # inf if failed
+        value, runs, _ = _evaluate(jnp.asarray(u), problem)  # inf if failed
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
-        evaluated.append((float(value), label, p, u, ok, steps))
+        evaluated.append((float(value), label, p, u, ok, steps, runs.status))
     # the equation-error start wins ties (it is listed first; the sort is stable)
     order = sorted(range(len(evaluated)), key=lambda k: evaluated[k][0])
-    _, label, initial, u0, ok, steps = evaluated[order[0]]
+    _, label, initial, u0, ok, steps, status0 = evaluated[order[0]]
     if len(evaluated) > 1:
         notes.append(
             f"started from {label} (loss "
@@ -260,7 +302,7 @@ def identify(
             + ")"
         )
     if not np.all(ok):
-        _raise_start_failure(problem, ok)
+        _raise_start_failure(problem, ok, np.asarray(status0))
     start_problem = problem
 
     def fit(problem: FitProblem, u0, budget, refit=False) -> tuple[FitProblem, Trace]:
@@ -268,7 +310,7 @@ def identify(
         kwargs: dict[str, Any] = dict(
             xtol=xtol,
             ftol=ftol,
-            max_steps=max_steps,
+            max_steps=max_iterations,
             progress=progress,
             n_experiments=len(experiments),
             budget=budget,
@@ -290,7 +332,7 @@ def identify(
         # Trial points that need many more steps than the current point are far
         # off (much stiffer, or lightly damped at high frequency): treat them as
         # failed rather than integrating them to the end.
-        budget = StepBudget(adaptive=max_sim_steps is None)
+        budget = StepBudget(adaptive=not fixed_budget, cap=options.max_steps)
         problem = budget.start(start_problem, int(np.max(steps)))
         problem, trace = fit(problem, u0, budget)
         return problem, trace, budget
@@ -307,10 +349,10 @@ def identify(
     # descent direction) is tried again from the other start; the lower end wins.
     # One that ran out of `max_steps` is not: the caller limited the work.
     other_simulations = 0
-    _, label2, initial2, u02, ok2, steps2 = evaluated[order[-1]]  # (two at most)
+    _, label2, initial2, u02, ok2, steps2, _ = evaluated[order[-1]]  # (two at most)
     if (
         not _decreased(trace)
-        and trace.status != "max_steps"
+        and trace.status != "max_iterations"
         and len(order) > 1
         and np.all(ok2)
     ):
@@ -400,7 +442,7 @@ def identify(
             f"parameter reached the end of its range, e.g. 0 for a log-parameter): "
             f"no standard errors in physical units"
         )
-    fitted = free_parameters(model, where, "identity", mask).apply(
+    fitted = free_parameters(model, where, "identity", mask, named).apply(
         model, jnp.asarray(estimate)
     )
     by_experiment: list = [None] * len(experiments)
@@ -409,13 +451,25 @@ def identify(
         for y0, ydot0 in zip(np.asarray(y0s), np.asarray(ydot0s)):
             by_experiment[problem.order[k]] = (y0, ydot0)
             k += 1
+    status, reason, misfit = trace.status, trace.reason, None
+    if status != "failed":
+        _, _, parts = _evaluate(jnp.asarray(trace.u), problem)
+        n_fitted = int(np.sum(~held)) + problem.n_initial
+        misfit = misfit_check(parts, problem, n_fitted, misfit_threshold)
+        if misfit.misfit:
+            status = "misfit"
+            reason = (
+                f"the model does not explain the data: "
+                f"{misfit.describe(names_of_bodies, model.convention)}; the "
+                f"standard errors are not meaningful (the optimiser: {trace.reason})"
+            )
     return IdentificationResult(
         model=fitted,
         stderr=free.unflatten(unc.stderr),
         loss_history=np.asarray(trace.loss_history),
-        converged=trace.status == "converged",
-        status=trace.status,
-        reason=trace.reason,
+        converged=status == "converged",
+        status=status,
+        reason=reason,
         names=free.names,
         estimate=estimate,
         initial=np.asarray(initial),
@@ -435,6 +489,87 @@ def identify(
         initial_state_names=init_names,
         initial_state_estimate=np.asarray(trace.u[n_p:]) + _initial_values(problem),
         initial_state_stderr=initial_stderr,
+        misfit=misfit,
+    )
+
+
+def _iterations(max_iterations, max_steps) -> int:
+    """The optimiser's iteration limit from `max_iterations`, or from the
+    deprecated `max_steps` (with a `DeprecationWarning`); default 100."""
+    if max_steps is not None:
+        if max_iterations is not None:
+            raise ValueError(
+                "give max_iterations only (max_steps is its deprecated name)"
+            )
+        warnings.warn(
+            "identify(max_steps=...) is deprecated: the optimiser's limit is "
+            "max_iterations (simulate's max_steps counts solver steps)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        max_iterations = max_steps
+    if max_iterations is None:
+        return DEFAULT_MAX_ITERATIONS
+    if isinstance(max_iterations, bool) or not (
+        isinstance(max_iterations, int) and max_iterations >= 1
+    ):
+        raise ValueError(
+            f"max_iterations must be a positive integer, got {max_iterations!r}"
+        )
+    return max_iterations
+
+
+def _simulation_options(
+    options, solver, sim_rtol, sim_atol, max_sim_steps, gimbal_tol, link_tol
+) -> tuple[SimulationOptions, bool]:
+    """The fit's `SimulationOptions`, and whether its step budget is fixed (the
+    deprecated `max_sim_steps`); the deprecated spellings warn."""
+    old = {"sim_rtol": sim_rtol, "sim_atol": sim_atol, "max_sim_steps": max_sim_steps}
+    given = [k for k, v in old.items() if v is not None]
+    if given:
+        warnings.warn(
+            f"identify({', '.join(f'{k}=...' for k in given)}) is deprecated: pass "
+            f"options=SimulationOptions(rtol=..., atol=..., max_steps=...)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+    if options is not None:
+        if not isinstance(options, SimulationOptions):
+            raise ValueError(
+                f"options must be a SimulationOptions, got {type(options).__name__}"
+            )
+        clashing = given + [
+            name
+            for name, value, default in (
+                ("solver", solver, None),
+                ("gimbal_tol", gimbal_tol, GIMBAL_TOL),
+                ("link_tol", link_tol, LINK_TOL),
+            )
+            if value is not default and value != default
+        ]
+        if clashing:
+            raise ValueError(
+                f"give the simulation settings either in options or as "
+                f"{', '.join(clashing)}, not both"
+            )
+        return dataclasses.replace(options, owner="identify"), False
+    if max_sim_steps is not None and not (
+        isinstance(max_sim_steps, int) and max_sim_steps >= 1
+    ):
+        raise ValueError(
+            f"max_sim_steps must be a positive integer or None, got {max_sim_steps!r}"
+        )
+    return (
+        SimulationOptions(
+            solver="tsit5" if solver is None else solver,
+            rtol=1e-8 if sim_rtol is None else float(sim_rtol),
+            atol=1e-10 if sim_atol is None else float(sim_atol),
+            max_steps=START_MAX_STEPS if max_sim_steps is None else max_sim_steps,
+            gimbal_tol=float(gimbal_tol),
+            link_tol=float(link_tol),
+            owner="identify",
+        ),
+        max_sim_steps is not None,
     )
 
 
@@ -586,18 +721,33 @@ def _within_range(free, guess, fallback):
 
 @eqx.filter_jit
 def _evaluate(u, problem):
-    """The loss at `u`, and how its simulations went (`Runs`)."""
+    """The loss at `u`, how its simulations went (`Runs`), and the residuals per
+    batch."""
     parts, runs = residuals_by_experiment(u, problem)
     value = 0.5 * sum(jnp.sum(r**2) for r in parts)
-    return value, runs
+    return value, runs, parts
 
 
-def _raise_start_failure(problem, ok):
+def _raise_start_failure(problem, ok, status=None):
     bad = [problem.order[k] for k in np.flatnonzero(~ok)]
+    how = ""
+    if status is not None:
+        codes = [Status(int(status[k])) for k in np.flatnonzero(~ok)]
+        how = ": " + ", ".join(
+            f"experiment {e} stopped with {c.name}"
+            + (
+                f" (the step limit max_steps = {problem.options.max_steps} of the "
+                f"simulation settings)"
+                if c == Status.MAX_STEPS_REACHED
+                else ""
+            )
+            for e, c in zip(bad, codes)
+        )
     raise ValueError(
-        f"the simulation at the starting parameters fails for experiments {bad} "
-        f"(stops early: gimbal lock, a collapsed link, the step limit or non-finite "
-        f"values; status codes are listed in elasticoop.Status: "
+        f"the simulation at the starting parameters fails for experiments {bad}"
+        f"{how} (stops early: gimbal lock, a collapsed link, the step limit or "
+        f"non-finite values; status codes are listed in elasticoop.Status: "
         f"{', '.join(f'{s.value} {s.name}' for s in Status)}); start from other "
-        f"values, or pass init='model' with a model that simulates"
+        f"values or raise the limit, or pass init='model' with a model that "
+        f"simulates"
     )

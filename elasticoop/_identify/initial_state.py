@@ -29,6 +29,8 @@ $\\dot Y(t_0)$. Two routes replace it:
   nuisance parameters: see `gauss_newton_uncertainty`'s `nuisance`).
 """
 
+import dataclasses
+
 import numpy as np
 
 from .._naming import coordinate_names, default_body_names
@@ -130,3 +132,91 @@ def initial_state_names(
         for b in bodies
         for c in coords
     )
+
+
+# The values of `identify(initial=...)`: how each experiment's initial state is set.
+INITIAL_RULES = ("auto", "equilibrium", "frozen", "data", "fitted")
+
+
+def initial_rule(initial, fit_initial, experiments, window, polyorder, notes):
+    """Apply `identify`'s `initial` rule to the experiments.
+
+    - `"auto"`: `"equilibrium"` for the experiments that started at rest
+      (`Experiment.rest`), their own `y_init`, `ydot_init` for the others.
+    - `"equilibrium"`: every experiment started at rest (those without
+      `Experiment.rest` with the contact bodies held at their poses in
+      `y_init`): its initial state is the rest state of the parameters
+      evaluated, recomputed at every evaluation of the fit.
+    - `"frozen"`: the experiments' `y_init`, `ydot_init` as they are (for an
+      experiment at rest: the rest state of the model passed in, not
+      recomputed).
+    - `"data"`: taken from each experiment's first samples
+      (`initial_state_from_data` with `window`, `polyorder`).
+    - `"fitted"`: estimated with the parameters (`fit_initial="state"`), starting
+      from the experiments' own.
+
+    **Returns:** `(experiments, fit_initial, rest)`: the experiments to fit,
+    the `fit_initial` to use, and whether rest states are recomputed. Appends what
+    was done to `notes`.
+    """
+    if initial not in INITIAL_RULES:
+        raise ValueError(
+            f"initial must be one of {INITIAL_RULES} (how each experiment's "
+            f"initial state is set), got {initial!r}"
+        )
+    fitted_parts(fit_initial)  # checked
+    if fit_initial != "none" and initial == "equilibrium":
+        raise ValueError(
+            f"initial={initial!r} recomputes the initial state from the parameters; "
+            f"it cannot also be estimated (fit_initial={fit_initial!r})"
+        )
+    at_rest = [e.rest is not None for e in experiments]
+    if initial == "fitted":
+        if fit_initial not in ("none", "state"):
+            raise ValueError(
+                f"initial='fitted' estimates the whole initial state; "
+                f"fit_initial={fit_initial!r} names a part of it"
+            )
+        notes.append(
+            "initial state of each experiment estimated with the parameters "
+            "(initial = fitted)"
+        )
+        return experiments, "state", False
+    if initial == "data":
+        out = []
+        for k, e in enumerate(experiments):
+            y0, ydot0 = initial_state_from_data(
+                e.ts, e.y, window, polyorder, f"experiments[{k}].y"
+            )
+            out.append(dataclasses.replace(e, y_init=y0, ydot_init=ydot0))
+        notes.append(
+            "initial state of each experiment taken from its first samples "
+            "(initial = data: the first sample, and the Savitzky-Golay rate)"
+        )
+        return out, fit_initial, False
+    if (
+        initial == "frozen"
+        or fit_initial != "none"
+        or (initial == "auto" and not any(at_rest))
+    ):
+        if initial == "frozen" and any(at_rest):
+            notes.append(
+                "initial state frozen (initial = frozen): the experiments at rest "
+                "start from the equilibrium of the starting model, not recomputed"
+            )
+        return experiments, fit_initial, False
+    if initial == "equilibrium":
+        experiments = [
+            e
+            if e.rest is not None
+            else dataclasses.replace(
+                e, rest=True, ydot_init=np.zeros(np.shape(e.ydot_init))
+            )
+            for e in experiments
+        ]
+    notes.append(
+        "initial state at rest in the static equilibrium of the parameters evaluated, "
+        "recomputed at every evaluation (initial = equilibrium; the held "
+        "coordinates at their commanded poses, the applied forces as numbers)"
+    )
+    return experiments, fit_initial, True

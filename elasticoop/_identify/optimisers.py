@@ -78,7 +78,7 @@ class Trace:
     failures: collections.Counter = dataclasses.field(
         default_factory=collections.Counter
     )
-    status: str = "max_steps"
+    status: str = "max_iterations"
     reason: str = ""
     wall_time: float = 0.0
     residual: np.ndarray | None = None  # at the optimum, when the method has them
@@ -358,7 +358,7 @@ def levenberg_marquardt(
             )
             break
     else:
-        trace.reason = f"reached max_steps = {max_steps} solver steps"
+        trace.reason = f"reached max_iterations = {max_steps} iterations"
     r, Jv = _lm_final(state)
     trace.residual = r / scale
     trace.jacobian = Jv / scale / u_scale[None, :]
@@ -526,7 +526,7 @@ def optax_minimise(
             trace.reason = f"last step below xtol = {xtol} or ftol = {ftol}"
             break
     else:
-        trace.reason = f"reached max_steps = {max_steps} iterations"
+        trace.reason = f"reached max_iterations = {max_steps} iterations"
     trace.u = np.asarray(u)
     trace.wall_time = time.perf_counter() - start
     return _conclude(trace, expect_decrease)

@@ -95,6 +95,14 @@ def _check_range(p, lower, upper, name, what):
         )
 
 
+def _range_text(t) -> str:
+    if isinstance(t, Bounded):
+        return f"between {t.lower:g} and {t.upper:g}, exclusive"
+    if isinstance(t, Log | Softplus):
+        return "values above 0"
+    return "finite values"
+
+
 _NAMED: dict[str, Callable[[], AbstractTransform]] = {
     "log": Log,
     "softplus": Softplus,
@@ -173,13 +181,28 @@ class FreeParameters(eqx.Module):
         return jax.tree.unflatten(treedef, leaves)
 
     def unconstrained(self, p) -> np.ndarray:
-        """$u = g^{-1}(p)$ for physical values `p` (one flat vector)."""
-        parts = [
-            t.inverse(np.asarray(x), name).reshape(-1)
-            for t, x, name in zip(
-                self.transforms, self.split(np.asarray(p)), self.leaf_names
-            )
-        ]
+        """$u = g^{-1}(p)$ for physical values `p` (one flat vector); a value
+        outside its transform's range is a `ValueError` naming the entry (e.g.
+        `stiffness[plate-front].x`)."""
+        parts, start = [], 0
+        for t, x, n in zip(self.transforms, self.split(np.asarray(p)), self.counts):
+            flat = np.asarray(x).reshape(-1)
+            try:
+                parts.append(np.asarray(t.inverse(flat, "")).reshape(-1))
+            except ValueError:
+                for k in range(flat.size):
+                    try:
+                        t.inverse(flat[k : k + 1], "")
+                    except ValueError:
+                        raise ValueError(
+                            f"{self.names[start + k]} = {float(flat[k])!r} is "
+                            f"outside the range of the {type(t).__name__} "
+                            f"reparameterisation ({_range_text(t)}): start it "
+                            f"from a value inside "
+                            f"that range, or choose another transform"
+                        ) from None
+                raise
+            start += n
         return np.concatenate(parts)
 
     def current(self, model) -> np.ndarray:
@@ -217,7 +240,9 @@ class FreeParameters(eqx.Module):
         return jax.tree.unflatten(self.structure, parts)
 
 
-def free_parameters(model, where, transform="log", mask=None) -> FreeParameters:
+def free_parameters(
+    model, where, transform="log", mask=None, body_names=None
+) -> FreeParameters:
     """Resolve `where(model)` into a `FreeParameters`.
 
     **Arguments:**
@@ -231,6 +256,9 @@ def free_parameters(model, where, transform="log", mask=None) -> FreeParameters:
       boolean arrays in the structure of `where(model)`, each shaped like its
       leaf (`None` in place of an array frees that whole leaf). Entries where the
       mask is False keep the model's values.
+    - `body_names`: names of the bodies in the parameters' names (e.g.
+      `stiffness[plate-front].x`, `mass[plate]`, `inertia[plate].A`); default:
+      their indices (`stiffness[0-1].x`, `bodies.mass[0]`).
     """
     if not callable(where):
         raise ValueError(
@@ -283,7 +311,7 @@ def free_parameters(model, where, transform="log", mask=None) -> FreeParameters:
     entries = _mask_entries(mask, structure, shapes, [paths[i] for i in indices])
     names: list[str] = []
     for index, shape, free in zip(indices, shapes, entries):
-        every = _entry_names(model, paths[index].lstrip("."), shape)
+        every = _entry_names(model, paths[index].lstrip("."), shape, body_names)
         names += every if free is None else [every[k] for k in free]
     return FreeParameters(
         indices=indices,
@@ -336,12 +364,24 @@ class _Label:
         return f"<leaf {self.index}>"
 
 
-def _entry_names(model, path, shape):
-    """Readable names of the entries of one leaf, e.g. `stiffness[0-1].x`."""
+def _entry_names(model, path, shape, body_names=None):
+    """Readable names of the entries of one leaf, e.g. `stiffness[0-1].x`, or with
+    `body_names` `stiffness[plate-front].x`."""
+    names = list(body_names) if body_names is not None else None
     if isinstance(model, MobileModel) and path in ("stiffness", "damping"):
         pairs = np.asarray(model.pairs)
         coords = coordinate_names(model.convention)
+        if names is not None:
+            return [
+                f"{path}[{names[i]}-{names[j]}].{c}"
+                for i, j in pairs.tolist()
+                for c in coords
+            ]
         return [f"{path}[{i}-{j}].{c}" for i, j in pairs.tolist() for c in coords]
+    if names is not None and path == "bodies.mass" and shape == (len(names),):
+        return [f"mass[{b}]" for b in names]
+    if names is not None and path == "bodies.inertia" and shape == (len(names), 3):
+        return [f"inertia[{b}].{a}" for b in names for a in "ABC"]
     if not shape:
         return [path]
     return [

@@ -28,6 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Int
 
+from .._analysis import rest_state
+from .._forces import pad_to_bodies
 from .._options import SimulationOptions
 from .._simulate import simulate
 from .experiment import Experiment, batch_experiments
@@ -78,6 +80,9 @@ class FitProblem(eqx.Module):
     # Free parameters held at `u_held` (reparameterised values), not fitted.
     held: jax.Array
     u_held: jax.Array
+    # Whether experiments that started at rest (`Experiment.rest`) start from the
+    # rest state of the parameters evaluated (recomputed at every evaluation).
+    rest: bool = eqx.field(static=True, default=False)
 
     @property
     def n_parameters(self) -> int:
@@ -100,7 +105,7 @@ class FitProblem(eqx.Module):
 
 
 def make_problem(
-    model, free, experiments, options, fit_initial=(False, False)
+    model, free, experiments, options, fit_initial=(False, False), rest=False
 ) -> FitProblem:
     groups = batch_experiments(experiments)
     order = tuple(k for indices, _ in groups for k in indices)
@@ -119,6 +124,7 @@ def make_problem(
         (bool(fit_initial[0]), bool(fit_initial[1])),
         jnp.zeros(free.size, bool),
         jnp.zeros(free.size, jnp.float64),
+        bool(rest),
     )
     zeros = jnp.zeros(problem.size, jnp.float64)
     return eqx.tree_at(lambda p: (p.u_offset, p.u_scale), problem, (zeros, zeros + 1.0))
@@ -179,14 +185,40 @@ def _simulate_batch(
     return eqx.filter_vmap(one)(data.experiments, y_init, ydot_init)
 
 
+def _rest_states(model, data: _Data) -> tuple[jax.Array, jax.Array]:
+    """The batch's initial states at rest: $Y(t_0)$ the `rest_state` of `model`
+    with the held coordinates at their values in `y_init` (the free ones start
+    there), under the applied forces at rest at $t_0$ as numbers; $\\dot Y = 0$."""
+    held = np.asarray(data.experiments.rest, dtype=bool)
+    n = held.shape[0]
+
+    def one(e: Experiment):
+        y_guess = e.y_init
+        F = None
+        if e.forces is not None:
+            at_rest = e.forces(e.ts[0], y_guess, jnp.zeros_like(y_guess))
+            F = pad_to_bodies(jnp.asarray(at_rest), n)
+        return rest_state(model, y_guess, F, held, throw=False)
+
+    y0 = eqx.filter_vmap(one)(data.experiments)
+    return y0, jnp.zeros_like(y0)
+
+
 def initial_states(u, problem: FitProblem) -> list[tuple[jax.Array, jax.Array]]:
     """The initial states $(Y(t_0), \\dot Y(t_0))$ each batch's simulations start
-    from at $u$, each `(batch, bodies, 6)`: the experiments' `y_init`, `ydot_init`
-    plus the estimated corrections $\\Delta_e$ held in $u$ after the parameters."""
+    from at $u$, each `(batch, bodies, 6)`: with `problem.rest`, for experiments
+    that started at rest (`Experiment.rest`), the rest state of the parameters at
+    $u$ (NaN where it is not found: the evaluation fails); otherwise the
+    experiments' `y_init`, `ydot_init` plus the estimated corrections
+    $\\Delta_e$ held in $u$ after the parameters."""
     positions, rates = problem.fit_initial
     offset = problem.n_parameters
     out = []
+    model = fitted_model(u, problem) if problem.rest else None
     for data in problem.batches:
+        if model is not None and data.experiments.rest is not None:
+            out.append(_rest_states(model, data))
+            continue
         y0, ydot0 = data.experiments.y_init, data.experiments.ydot_init
         for fitted, name in ((positions, "y"), (rates, "ydot")):
             if not fitted:

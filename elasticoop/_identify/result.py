@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 
+from .misfit import AUTOCORRELATION_THRESHOLD, MisfitCheck
 from .uncertainty import Uncertainty
 
 
@@ -35,7 +36,8 @@ class IdentificationResult:
       parameter the data cannot determine).
     - `loss_history`: loss $\\tfrac12\\sum r^2$ after each accepted iteration.
     - `converged`: whether the convergence test was met after the loss decreased.
-    - `status`: `"converged"`, `"max_steps"`, `"stalled"` (no further progress, or
+    - `status`: `"converged"`, `"max_iterations"`, `"misfit"` (the model does
+      not explain the data, see `misfit`), `"stalled"` (no further progress, or
       no step lowered the loss from the start) or `"failed"` (every trial step's
       simulation failed, or the solver failed); `reason` says why in words,
       including how many trial simulations failed and why.
@@ -61,6 +63,9 @@ class IdentificationResult:
       the estimated initial-state entries (empty when none were estimated),
       e.g. `experiment[0].ydot_init.contact1.z`, their values and standard errors
       (marginal over the parameters not held).
+    - `misfit`: the residuals against the noise (`MisfitCheck`; `None` for a
+      failed fit). Where `misfit.misfit`, `status` is `"misfit"` and the standard
+      errors are not meaningful.
     """
 
     model: object
@@ -90,6 +95,13 @@ class IdentificationResult:
     initial_state_stderr: np.ndarray = dataclasses.field(
         default_factory=lambda: np.zeros(0)
     )
+    misfit: MisfitCheck | None = None
+
+    @property
+    def stderr_meaningful(self) -> bool:
+        """Whether the standard errors mean anything: computed, at a fit that
+        explains the data (not a misfit or a failed fit)."""
+        return self.status not in ("misfit", "failed") and not self.uncertainty.reason
 
     @property
     def held_mask(self) -> np.ndarray:
@@ -144,22 +156,51 @@ class IdentificationResult:
             f"  loss {self.loss_history[0]:.6g} -> {self.loss_history[-1]:.6g}, "
             f"noise scale {self.uncertainty.noise_scale:.3g}",
         ]
+        if self.misfit is not None:
+            m = self.misfit
+            if m.declared:
+                lines.append(
+                    f"  residuals {m.ratio:.3g} x the declared noise (mean square per "
+                    f"degree of freedom; 1 at the noise floor, misfit above "
+                    f"{m.threshold:g}); noise floor of the loss {m.noise_floor:.6g}"
+                )
+            else:
+                lines.append(
+                    f"  residuals {m.ratio:.3g} x the noise the data imply; lag-1 "
+                    f"autocorrelation {m.autocorrelation:.3g} (noise: about 0; "
+                    f"misfit above {AUTOCORRELATION_THRESHOLD:g})"
+                )
+        if not self.stderr_meaningful:
+            lines.append(
+                "  STANDARD ERRORS NOT MEANINGFUL: "
+                + (
+                    "the model does not explain the data"
+                    if self.status == "misfit"
+                    else "the fit failed"
+                    if self.status == "failed"
+                    else "they could not be computed"
+                )
+            )
         lines += [f"  note: {n}" for n in self.notes]
         if self.uncertainty.reason:
             lines.append(f"  {self.uncertainty.reason}")
         width = max(len("parameter"), *(len(n) for n in self.names))
         lines.append(
             f"  {'parameter':<{width}}  {'estimate':>12}  {'std. error':>11}  "
-            f"{'rel.':>8}  {'initial':>12}  "
+            f"{'rel.':>8}  {'initial':>12}  std. error"
         )
+        any_held = bool(np.any(self.held_mask))
         for row in self.table:
             known = not self.uncertainty.reason
-            flag = "" if row.identifiable or not known else "  NOT IDENTIFIABLE"
+            flag = "" if row.identifiable or not known else ", NOT IDENTIFIABLE"
+            basis = "conditional on the held values" if any_held else "marginal"
             if row.held:
-                flag = "  NOT IDENTIFIABLE, held at start"
+                basis = "held at its start value (not fitted)"
+                flag = ", NOT IDENTIFIABLE"
             lines.append(
                 f"  {row.name:<{width}}  {row.estimate:12.6g}  {row.stderr:11.4g}  "
-                f"{row.relative_stderr:8.2%}  {row.initial:12.6g}{flag}"
+                f"{_relative(row.relative_stderr):>8}  {row.initial:12.6g}  "
+                f"{basis}{flag}"
             )
         corr = self.correlation
         pairs = [
@@ -184,7 +225,8 @@ class IdentificationResult:
         if n_held:
             lines.append(
                 f"  {n_held} of them held at their start values (not fitted; the "
-                f"others are fitted with these values taken as known)"
+                f"others are fitted with these values taken as known, so their "
+                f"standard errors leave out the held values' uncertainty)"
             )
         if len(self.initial_state_names):
             width = max(len(n) for n in self.initial_state_names)
@@ -207,3 +249,13 @@ class IdentificationResult:
 
     def __str__(self) -> str:
         return self.report()
+
+
+def _relative(value: float) -> str:
+    """A relative standard error as a percentage; beyond 100x (an estimate near
+    zero against its error) a bound, not a meaningless figure."""
+    if not np.isfinite(value):
+        return "inf"
+    if value > 100:
+        return ">10000%"
+    return f"{value:.2%}"

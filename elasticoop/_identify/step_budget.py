@@ -23,13 +23,14 @@ STEP_BUDGET_FACTOR = 8
 MIN_BUDGET = 4096
 
 
-def step_budget(steps: int) -> int:
+def step_budget(steps: int, cap: int = START_MAX_STEPS) -> int:
     """The budget of trial simulations near a point whose simulations took `steps`
     solver steps: `STEP_BUDGET_FACTOR` times `steps`, at least `MIN_BUDGET`,
     rounded up to a power of 2 (fits of similar problems share their compiled
-    functions, and a raise at least doubles it), at most `START_MAX_STEPS`."""
+    functions, and a raise at least doubles it), at most `cap` (the simulation
+    settings' `max_steps`)."""
     wanted = max(MIN_BUDGET, math.ceil(STEP_BUDGET_FACTOR * int(steps)))
-    return min(START_MAX_STEPS, 1 << (wanted - 1).bit_length())
+    return min(cap, 1 << (wanted - 1).bit_length())
 
 
 @dataclasses.dataclass
@@ -40,6 +41,7 @@ class StepBudget:
     budget `follow` set (None: never raised)."""
 
     adaptive: bool
+    cap: int = START_MAX_STEPS
     notes: list[str] = dataclasses.field(default_factory=list)
     raised_to: int | None = None
 
@@ -48,11 +50,13 @@ class StepBudget:
         solver steps (unchanged when the budget is fixed)."""
         if not self.adaptive:
             return problem
-        budget = step_budget(steps)
+        budget = step_budget(steps, self.cap)
+        if budget >= self.cap:
+            return with_max_steps(problem, self.cap)
         self.notes.append(
             f"simulations limited to {budget} solver steps ({STEP_BUDGET_FACTOR}x "
             f"those at the start, at least {MIN_BUDGET}, raised as the fit reaches "
-            f"points that need more, up to {START_MAX_STEPS}); a trial point "
+            f"points that need more, up to {self.cap}); a trial point "
             f"needing more is rejected"
         )
         return with_max_steps(problem, budget)
@@ -61,7 +65,7 @@ class StepBudget:
         """`problem` with the budget that an accepted point needing `steps` solver
         steps calls for (the same problem when its budget suffices)."""
         current = problem.options.max_steps
-        budget = step_budget(steps)
+        budget = step_budget(steps, self.cap)
         if not self.adaptive or budget <= current:
             return problem
         self.raised_to = budget

@@ -57,16 +57,24 @@ def plot_fit(
     return fig
 
 
-def plot_loss_history(loss_history, title: str = "loss history"):
+def plot_loss_history(
+    loss_history, title: str = "loss history", noise_floor: float | None = None
+):
     """The loss $\\tfrac12\\sum r^2$ after each accepted iteration of a fit
-    (`IdentificationResult.loss_history`), on a log scale.
+    (`IdentificationResult.loss_history`), on a log scale, with the noise floor
+    (`IdentificationResult.misfit.noise_floor`, the loss the declared noise alone
+    explains, $\\tfrac12 (N - n_p)$) as a dashed line where it is given: a fit
+    that explains its data ends on it.
 
     **Returns:** a matplotlib `Figure`.
     """
     loss = np.asarray(loss_history, dtype=float)
     fig = new_figure(5.0, 3.2)
     ax = fig.subplots()
-    ax.semilogy(np.arange(len(loss)), loss, "o-", ms=3)
+    ax.semilogy(np.arange(len(loss)), loss, "o-", ms=3, label="loss")
+    if noise_floor is not None and np.isfinite(noise_floor) and noise_floor > 0:
+        ax.axhline(noise_floor, color="0.4", ls="--", lw=1, label="noise floor")
+        ax.legend(loc="upper right", fontsize=8)
     ax.set_xlabel("iteration")
     ax.set_ylabel("loss")
     ax.set_title(title)
