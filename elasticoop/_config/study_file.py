@@ -28,7 +28,7 @@ from ..montecarlo import (
     Uniform,
 )
 from .build import load_scenario
-from .limits import MAX_SCENARIO_FILE_BYTES, format_bytes
+from .limits import MAX_SCENARIO_FILE_BYTES, format_bytes, output_limit_problem
 from .problems import Problem, Problems, ScenarioError, message_of, unknown_key_message
 from .study_quantities import INERTIA_AXES, OUTPUTS, QUANTITIES
 from .study_schema import (
@@ -282,6 +282,13 @@ class _StudyBuilder:
             start = ts[0] if time.start is None else time.start
             stop = ts[-1] if time.stop is None else time.stop
             n = len(ts) if time.samples is None else time.samples
+            problem = output_limit_problem(
+                n, scenario.model.n_bodies, len(scenario.connection_names or ())
+            )
+            if problem is not None:
+                # before the times are made (2e9 samples: 16 GB)
+                self.add("[time]", "samples", problem)
+                return scenario
             if not stop > start:
                 self.add(
                     "[time]",
