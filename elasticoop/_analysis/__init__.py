@@ -16,3 +16,7 @@ from .load_distribution import (
     trajectory_load_distribution as trajectory_load_distribution,
 )
 from .modes import Modes as Modes, modes as modes
+from .rest_state import (
+    contact_bodies_held as contact_bodies_held,
+    rest_state as rest_state,
+)
