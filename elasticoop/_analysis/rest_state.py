@@ -123,7 +123,7 @@ def rest_state(
     return jnp.where(converged, y, jnp.nan)
 
 
-def _checked(y: State, converged: Array, max_steps: int) -> State:
+def _checked(y: State, converged: Array | bool, max_steps: int) -> State:
     return eqx.error_if(
         y,
         ~converged,
