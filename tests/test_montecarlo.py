@@ -433,8 +433,7 @@ def test_sensitivities_match_finite_differences():
         outputs={"error": mc.final_pose_error(), "deflection": mc.max_deflection()},
         n_samples=2,
         key=3,
-        rtol=1e-12,
-        atol=1e-14,
+        options=eo.SimulationOptions(rtol=1e-12, atol=1e-14),
     )
     sens = mc.local_sensitivities(study, batch_width=2)
     assert sens.sizes["sample"] == 2

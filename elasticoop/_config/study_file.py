@@ -158,27 +158,33 @@ class _StudyBuilder:
                     "name",
                     f"'{name}' names both a parameter and an output",
                 )
+        initial = self.initial(scenario)
         self.problems.raise_if_any()
         assert scenario is not None and self.info is not None  # else: problems
         sampling = self.s["sampling"]
-        study = Study(
-            scenario.model,
-            scenario.y_init,
-            scenario.ydot_init,
-            scenario.ts,
-            parameters=parameters,
-            outputs=outputs,
-            n_samples=self.samples or sampling.samples,
-            key=sampling.seed,
-            forces=scenario.forces,
-            sampling=sampling.method,
-            solver=scenario.solver,
-            rtol=scenario.rtol,
-            atol=scenario.atol,
-            max_steps=scenario.max_steps,
-            body_names=scenario.names,
-            connection_names=scenario.connection_names or None,
-        )
+        try:
+            study = Study(
+                scenario.model,
+                scenario.y_init,
+                scenario.ydot_init,
+                scenario.ts,
+                parameters=parameters,
+                outputs=outputs,
+                n_samples=self.samples or sampling.samples,
+                key=sampling.seed,
+                forces=scenario.forces,
+                sampling=sampling.method,
+                options=scenario.options,
+                body_names=scenario.names,
+                connection_names=scenario.connection_names or None,
+                initial=initial,
+            )
+        except ValueError as err:
+            if initial != "equilibrium" or "rest state" not in str(err):
+                raise
+            self.add("[initial]", "from", f"'equilibrium': {err}")
+            self.problems.raise_if_any()
+            raise
         return StudyFile(
             study=study,
             scenario=scenario,
@@ -237,6 +243,22 @@ class _StudyBuilder:
                 ).lstrip(".")
                 self.add(_label(name, k, raw[k]), key, message_of(dict(e)))
             return None
+
+    def initial(self, scenario: Scenario | None) -> str:
+        """`Study.initial` from `[initial] from` (default `"equilibrium"`)."""
+        table = self.s.get("initial")
+        start = "equilibrium" if table is None else table.start
+        if scenario is None:
+            return "given"
+        if start == "equilibrium" and np.any(np.asarray(scenario.ydot_init) != 0):
+            self.add(
+                "[initial]",
+                "from",
+                "'equilibrium' (the default) starts every sample at rest, but the "
+                'scenario starts with velocities; give from = "scenario" to start '
+                "every sample from the scenario's initial state",
+            )
+        return "given" if start == "scenario" else "equilibrium"
 
     # -- the scenario -------------------------------------------------------------
     def scenario(self) -> tuple[Scenario | None, str]:

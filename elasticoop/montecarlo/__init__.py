@@ -28,6 +28,7 @@ from .outputs import (
     max_deflection as max_deflection,
     object_pose as object_pose,
     peak_elastic_force as peak_elastic_force,
+    peak_elastic_force_rise as peak_elastic_force_rise,
     trajectory as trajectory,
 )
 from .parameters import Parameter as Parameter

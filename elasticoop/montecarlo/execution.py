@@ -25,6 +25,7 @@ from pathlib import Path
 import diffrax
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
@@ -48,7 +49,13 @@ from .store import (
     to_dataset,
     write_chunk,
 )
-from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
+from .study import (
+    INVALID_SAMPLE,
+    Study,
+    combined_fingerprint,
+    one_sample,
+    sample_start,
+)
 
 DEFAULT_BATCH_WIDTH = 128
 """Samples integrated together on each device unless `run_study` is given a
@@ -106,23 +113,34 @@ def _run_batch(study: Study, mesh: Mesh, index, strata, started, batch_width: in
     # sample starting as one stops (`shard_map` of a `vmap` of
     # `simulate(..., batch_loop=batch_width)`), not waiting for the other devices.
     # Where `started` is false (the padding of a last chunk) the sample stops at
-    # its first step.
+    # its first step. The samples' rest states (`initial="equilibrium"`) are
+    # solved before, outside the `shard_map` (optimistix's BFGS does not trace
+    # inside one), split over the devices as the samples are.
     arrays, static = eqx.partition(study, eqx.is_array)
+    if study.initial == "equilibrium":
+        starts = jax.vmap(jax.vmap(partial(sample_start, study)))(index, strata)
+    else:
+        starts = jnp.zeros(index.shape + (0,))  # not used
 
-    def on_device(arrays, index, strata, started):
-        sample = partial(
-            one_sample, eqx.combine(arrays, static), batch_loop=batch_width
-        )
-        records = jax.vmap(sample)(index[0], strata[0], started[0])
+    def on_device(arrays, index, strata, started, starts):
+        study = eqx.combine(arrays, static)
+
+        def sample(index, strata, started, start):
+            y_start = start if study.initial == "equilibrium" else None
+            return one_sample(
+                study, index, strata, started, batch_width, y_start=y_start
+            )
+
+        records = jax.vmap(sample)(index[0], strata[0], started[0], starts[0])
         return jax.tree.map(lambda x: x[None], records)
 
     return jax.shard_map(
         on_device,
         mesh=mesh,
-        in_specs=(P(), P("samples"), P("samples"), P("samples")),
+        in_specs=(P(), P("samples"), P("samples"), P("samples"), P("samples")),
         out_specs=P("samples"),
         check_vma=False,
-    )(arrays, index, strata, started)
+    )(arrays, index, strata, started, starts)
 
 
 def _template(study: Study) -> dict:
