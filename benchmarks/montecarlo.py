@@ -98,9 +98,7 @@ def three_body_study(
         outputs={"peak_force": mc.peak_elastic_force(), "error": mc.final_pose_error()},
         n_samples=n_samples,
         key=0,
-        solver=solver,
-        rtol=rtol,
-        atol=rtol / 100,
+        options=eo.SimulationOptions(solver=solver, rtol=rtol, atol=rtol / 100),
     )
 
 

@@ -433,8 +433,7 @@ def test_sensitivities_match_finite_differences():
         outputs={"error": mc.final_pose_error(), "deflection": mc.max_deflection()},
         n_samples=2,
         key=3,
-        rtol=1e-12,
-        atol=1e-14,
+        options=eo.SimulationOptions(rtol=1e-12, atol=1e-14),
     )
     sens = mc.local_sensitivities(study, batch_width=2)
     assert sens.sizes["sample"] == 2
@@ -506,9 +505,22 @@ def test_variance_ranking_by_hand():
 def test_chunk_size_from_memory_budget(study):
     size = mc.chunk_size_for(study, 2**20, batch_width=4)
     assert size % 4 == 0 and 4 <= size <= N_SAMPLES
-    assert mc.chunk_size_for(study, 2**30, 4, n_devices=2) == N_SAMPLES
+    # 24 samples are 3 batches of 8 lanes, fewer than MIN_CHUNKS: one batch a chunk
+    assert mc.chunk_size_for(study, 2**30, 4, n_devices=2) == 8
     with pytest.raises(ValueError, match="memory_budget"):
         mc.chunk_size_for(study, 10_000, batch_width=64)
+
+
+def test_a_thousand_samples_are_not_one_chunk():
+    """A chunk is what a killed run loses: at most 1/MIN_CHUNKS of the study's
+    batches and _MAX_BATCHES_PER_CHUNK batches. Before, 1,000 samples on 128
+    lanes were one chunk of 1024, so Ctrl-C kept nothing."""
+    width = mc.DEFAULT_BATCH_WIDTH
+    thousand = _study(n_samples=1000)
+    assert mc.chunk_size_for(thousand, 2**30, width) == width  # 8 chunks
+    big = _study(n_samples=10**6)
+    assert mc.chunk_size_for(big, 2**30, width) == 16 * width
+    assert mc.chunk_size_for(big, 2**30, width, n_devices=2) == 16 * 2 * width
 
 
 def test_default_batch_width_fills_the_devices_and_fits_the_memory_budget(study):

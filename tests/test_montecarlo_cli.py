@@ -108,6 +108,7 @@ def test_an_immobile_scenario_has_no_connections_to_vary(tmp_path):
     path = _write(
         tmp_path,
         'scenario = "hanging_object"\n[sampling]\nsamples = 2\n'
+        '[initial]\nfrom = "scenario"\n'
         '[[parameters]]\nquantity = "stiffness"\ndistribution = "lognormal"\n'
         "relative_spread = 0.1\n"
         '[[outputs]]\nquantity = "peak_elastic_force"\n',
@@ -149,8 +150,10 @@ def test_the_shipped_study_builds_the_laws_it_states(shipped_study):
     np.testing.assert_array_equal(mass.distribution.mean, [2.0, 0.3, 0.3])
     np.testing.assert_array_equal(mass.distribution.std, [0.1, 0.0, 0.0])
     assert laws["kp"].target == "forces"
+    assert study.initial == "equilibrium"
     assert shipped_study.thresholds == {
-        "peak_force": (90.0, 95.0),
+        "peak_force": (85.0,),
+        "force_rise": (1.0,),
         "deflection": (5e-3,),
         "pose": (),
     }
@@ -231,7 +234,7 @@ def test_montecarlo_runs_resumes_refuses_and_summarises(tmp_path, capsys):
     assert np.all(ds["mass"].values[:, 1:] == 0.3)
     assert len(set(ds["mass"].values[:, 0])) == 4
     printed = PROBABILITY.findall(out)
-    assert len(printed) == 2 * 2 + 2  # peak_force: 2 thresholds, deflection: 1
+    assert len(printed) == 3 * 2  # peak_force, force_rise, deflection: 1 each
     for output, connection, threshold, p, low, high, n in printed:
         values = ds[output].sel(connection=connection).values
         expected = np.mean(values > float(threshold))
@@ -246,11 +249,60 @@ def test_montecarlo_runs_resumes_refuses_and_summarises(tmp_path, capsys):
     assert written == {
         "summary.json",
         "histogram_peak_force.png",
+        "histogram_force_rise.png",
         "histogram_deflection.png",
         "sensitivity_peak_force.png",
+        "sensitivity_force_rise.png",
         "sensitivity_deflection.png",
         "quantiles_pose.png",
     }
+
+
+@pytest.mark.slow
+def test_the_shipped_study_studies_the_lift(tmp_path):
+    """Before, every sample started from the nominal equilibrium with the nominal
+    hold forces, so the peaks came from the jump at t = 0 and the results with
+    `lift_height = 0.0` were identical to the nominal lift's. Now each sample
+    starts at rest in its own equilibrium (its first pose differs with its
+    draws), and the lift raises the grasp loads above their start."""
+    text = SHIPPED.read_text(encoding="utf-8")
+    text = text.replace("[time]\nsamples = 61", "[time]\nstop = 0.6\nsamples = 13")
+    scenario = (SHIPPED.parent / "beam_lift.toml").read_text(encoding="utf-8")
+    assert "lift_height = 0.2 " in scenario and "stop = 0.6" in text
+    results = {}
+    for height in ("0.2", "0.0"):
+        folder = tmp_path / height
+        folder.mkdir()
+        (folder / "beam_lift.toml").write_text(
+            scenario.replace("lift_height = 0.2 ", f"lift_height = {height} ")
+        )
+        study = _write(folder, text, "beam_lift.study.toml")
+        store = folder / "store"
+        assert (
+            main(["montecarlo", str(study), "-o", str(store), "--samples", "4", "-q"])
+            == 0
+        )
+        results[height] = mc.open_study(store)
+    lift, still = results["0.2"], results["0.0"]
+    # the same draws, each sample at rest in its own equilibrium
+    np.testing.assert_array_equal(lift["mass"].values, still["mass"].values)
+    start = lift["pose"].isel(time=0).sel(coordinate="z").values
+    np.testing.assert_array_equal(
+        start, still["pose"].isel(time=0).sel(coordinate="z").values
+    )
+    assert np.ptp(start) > 1e-3
+    # the lift's accelerating phase (min-jerk: up to 0.42 s of 2 s) raises the
+    # loads: the peak force statistics follow the lift height (a sample whose
+    # load first falls, its beam heavier than the hold forces assume, may not
+    # pass its start within 0.6 s)
+    rise, rest = lift["force_rise"].values, still["force_rise"].values
+    assert np.all(rise >= rest) and np.any(rise > rest + 0.3), (rise, rest)
+    assert lift["peak_force"].mean() > still["peak_force"].mean() + 0.1
+    # without a lift, the object stays near its start; with it, it rises
+    z_end = lift["pose"].isel(time=-1).sel(coordinate="z").values
+    assert np.all(z_end - start > 0.02)
+    z_still = still["pose"].isel(time=-1).sel(coordinate="z").values
+    assert np.all(np.abs(z_still - start) < 0.01)
 
 
 def test_rank_correlations_rank_what_the_output_follows():
@@ -286,6 +338,10 @@ def test_time_and_solver_overrides_are_checked_and_followed(tmp_path):
         'relative_spread = 0.1\n[[outputs]]\nquantity = "final_pose_error"\n'
     )
     sampled = 'scenario = "hanging_object"\n[sampling]\nsamples = 2\n'
+    # the scenario starts turning: its samples cannot start at rest
+    with pytest.raises(StudyFileError, match="the scenario starts with velocities"):
+        load_study(_write(tmp_path, sampled + tail))
+    sampled += '[initial]\nfrom = "scenario"\n'
     path = _write(tmp_path, sampled + "[time]\nstop = 5.0\n" + tail)
     with pytest.raises(StudyFileError) as info:
         load_study(path)

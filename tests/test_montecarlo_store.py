@@ -25,7 +25,15 @@ def _state():
     return np.array([[x, 0.0, 1.0, *ANGLES] for x in (0.0, -0.5, 0.5)])
 
 
-def _study(scale=1.0, spread=0.1, lift=3.0, convention="zxz", ppf=None, callback=False):
+def _study(
+    scale=1.0,
+    spread=0.1,
+    lift=3.0,
+    convention="zxz",
+    ppf=None,
+    callback=False,
+    n_samples=N_SAMPLES,
+):
     """Every callable a lambda or a closure: the output, the stiffness law (and its
     inverse CDF with `ppf`) and the feedback force."""
     force = np.zeros((2, 6))
@@ -50,7 +58,7 @@ def _study(scale=1.0, spread=0.1, lift=3.0, convention="zxz", ppf=None, callback
         forces=lambda t, y, ydot: force,
         parameters=[mc.Parameter("k", lambda m: m.stiffness, law, relative=True)],
         outputs=outputs,
-        n_samples=N_SAMPLES,
+        n_samples=n_samples,
         key=3,
         sampling="random" if ppf is None else "lhs",
     )

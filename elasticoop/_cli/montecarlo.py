@@ -12,9 +12,16 @@ from .._cache import compilation_cache
 from .._config import load_study
 from .._io.strict_json import strict_json
 from .._io.study_summary import format_study_report, output_names, study_report
-from ..montecarlo import StoreError, StoreLockedError, open_study, run_study
+from ..montecarlo import (
+    StoreError,
+    StoreLockedError,
+    StudyTooLargeError,
+    open_study,
+    run_study,
+)
 from ..montecarlo.distributed import is_first_process
 from ..montecarlo.execution import ACCELERATOR_BATCH_WIDTH, DEFAULT_BATCH_WIDTH
+from ..montecarlo.store import check_store_folder
 from ._common import EXIT_OK, UserError, common_options, positive_int, say
 
 NAME = "montecarlo"
@@ -111,8 +118,11 @@ def run(args) -> int:
         raise UserError("give the folder of the results with -o STORE")
     start_processes(args)
     store = pathlib.Path(args.output)
-    if store.exists() and not store.is_dir():
-        raise UserError(f"the store {store} exists and is not a folder")
+    try:
+        # a file, or a folder of other files: refused before the study is built
+        check_store_folder(store)
+    except StoreError as err:
+        raise UserError(str(err)) from err
     study_file = load_study(args.target, samples=args.samples)
     study = study_file.study
     say(args, f"elasticoop montecarlo: {study_file.name} ({args.target})")
@@ -127,7 +137,7 @@ def run(args) -> int:
 
     def keep_record(_chunk=None) -> None:
         if not written and is_first_process():
-            (store / STUDY_FILE_RECORD).write_text(strict_json(record))
+            write_text_atomic(store / STUDY_FILE_RECORD, strict_json(record))
             written.append(True)
 
     with contextlib.ExitStack() as stack:
@@ -140,7 +150,7 @@ def run(args) -> int:
                 progress=not args.quiet,
                 on_chunk=keep_record,
             )
-        except (StoreError, StoreLockedError) as err:
+        except (StoreError, StoreLockedError, StudyTooLargeError) as err:
             raise UserError(str(err)) from err
     keep_record()
     if is_first_process():
@@ -247,9 +257,12 @@ def write_summary(ds, report, thresholds, units, folder: pathlib.Path) -> list:
         plot_study_sensitivity,
     )
 
-    folder.mkdir(exist_ok=True)
+    try:
+        folder.mkdir(exist_ok=True)
+    except OSError as err:
+        raise UserError(f"cannot make the folder {folder}: {err.strerror}") from err
     paths = [folder / "summary.json"]
-    paths[0].write_text(strict_json(report))
+    write_text_atomic(paths[0], strict_json(report))
     for name in output_names(ds):
         entry = report["outputs"][name]
         unit = units.get(name)
@@ -268,6 +281,28 @@ def write_summary(ds, report, thresholds, units, folder: pathlib.Path) -> list:
             if any("rank_correlation" in e for e in entry["elements"].values()):
                 figures[f"sensitivity_{name}.png"] = plot_study_sensitivity(ds, name)
         for file, figure in figures.items():
-            figure.savefig(folder / file, dpi=110)
+            try:
+                figure.savefig(folder / file, dpi=110)
+            except OSError as err:
+                raise UserError(
+                    f"cannot write {folder / file}: {err.strerror or err}"
+                ) from err
             paths.append(folder / file)
     return paths
+
+
+def write_text_atomic(file: pathlib.Path, text: str) -> None:
+    """Write `text` to `file` through a temporary file and a rename, so that a
+    failed write (a full disk, a read-only folder) leaves the earlier file whole;
+    `UserError` naming the file on failure."""
+    tmp = file.with_name(f".{file.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, file)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise UserError(
+            f"cannot write {file}: {err.strerror or err} [errno {err.errno}]; the "
+            f"results stored so far are kept"
+        ) from err

@@ -36,6 +36,26 @@ def output_bytes(
     return samples * numbers * FLOAT_BYTES
 
 
+def output_limit_problem(
+    samples: int, n_bodies: int, n_connections: int, prescribed: bool = False
+) -> str | None:
+    """Why the results of a run with `samples` output times (with the bodies and
+    connections given) do not fit `MAX_OUTPUT_BYTES`, in words; `None` when they
+    fit. Checked before the output times are made."""
+    size = output_bytes(samples, n_bodies, n_connections, prescribed)
+    if size <= MAX_OUTPUT_BYTES:
+        return None
+    per_sample = output_numbers_per_sample(n_bodies, n_connections, prescribed)
+    most = MAX_OUTPUT_BYTES // (FLOAT_BYTES * per_sample)
+    return (
+        f"the results of one run would need {format_bytes(size)} for samples = "
+        f"{samples} ({per_sample} float64 numbers per output time for {n_bodies} "
+        f"bod{'y' if n_bodies == 1 else 'ies'} and {n_connections} "
+        f"connection{'' if n_connections == 1 else 's'}), over the limit of "
+        f"{format_bytes(MAX_OUTPUT_BYTES)}; use at most {most} samples"
+    )
+
+
 def format_bytes(size: int | float) -> str:
     """`1.5 GiB`, `12.3 MiB`, `640 bytes` (`over 1024 EiB` beyond that)."""
     if size >= 2**70:

@@ -28,7 +28,7 @@ from ..montecarlo import (
     Uniform,
 )
 from .build import load_scenario
-from .limits import MAX_SCENARIO_FILE_BYTES, format_bytes
+from .limits import MAX_SCENARIO_FILE_BYTES, format_bytes, output_limit_problem
 from .problems import Problem, Problems, ScenarioError, message_of, unknown_key_message
 from .study_quantities import INERTIA_AXES, OUTPUTS, QUANTITIES
 from .study_schema import (
@@ -158,27 +158,33 @@ class _StudyBuilder:
                     "name",
                     f"'{name}' names both a parameter and an output",
                 )
+        initial = self.initial(scenario)
         self.problems.raise_if_any()
         assert scenario is not None and self.info is not None  # else: problems
         sampling = self.s["sampling"]
-        study = Study(
-            scenario.model,
-            scenario.y_init,
-            scenario.ydot_init,
-            scenario.ts,
-            parameters=parameters,
-            outputs=outputs,
-            n_samples=self.samples or sampling.samples,
-            key=sampling.seed,
-            forces=scenario.forces,
-            sampling=sampling.method,
-            solver=scenario.solver,
-            rtol=scenario.rtol,
-            atol=scenario.atol,
-            max_steps=scenario.max_steps,
-            body_names=scenario.names,
-            connection_names=scenario.connection_names or None,
-        )
+        try:
+            study = Study(
+                scenario.model,
+                scenario.y_init,
+                scenario.ydot_init,
+                scenario.ts,
+                parameters=parameters,
+                outputs=outputs,
+                n_samples=self.samples or sampling.samples,
+                key=sampling.seed,
+                forces=scenario.forces,
+                sampling=sampling.method,
+                options=scenario.options,
+                body_names=scenario.names,
+                connection_names=scenario.connection_names or None,
+                initial=initial,
+            )
+        except ValueError as err:
+            if initial != "equilibrium" or "rest state" not in str(err):
+                raise
+            self.add("[initial]", "from", f"'equilibrium': {err}")
+            self.problems.raise_if_any()
+            raise
         return StudyFile(
             study=study,
             scenario=scenario,
@@ -238,6 +244,22 @@ class _StudyBuilder:
                 self.add(_label(name, k, raw[k]), key, message_of(dict(e)))
             return None
 
+    def initial(self, scenario: Scenario | None) -> str:
+        """`Study.initial` from `[initial] from` (default `"equilibrium"`)."""
+        table = self.s.get("initial")
+        start = "equilibrium" if table is None else table.start
+        if scenario is None:
+            return "given"
+        if start == "equilibrium" and np.any(np.asarray(scenario.ydot_init) != 0):
+            self.add(
+                "[initial]",
+                "from",
+                "'equilibrium' (the default) starts every sample at rest, but the "
+                'scenario starts with velocities; give from = "scenario" to start '
+                "every sample from the scenario's initial state",
+            )
+        return "given" if start == "scenario" else "equilibrium"
+
     # -- the scenario -------------------------------------------------------------
     def scenario(self) -> tuple[Scenario | None, str]:
         if self.info is None:
@@ -282,6 +304,13 @@ class _StudyBuilder:
             start = ts[0] if time.start is None else time.start
             stop = ts[-1] if time.stop is None else time.stop
             n = len(ts) if time.samples is None else time.samples
+            problem = output_limit_problem(
+                n, scenario.model.n_bodies, len(scenario.connection_names or ())
+            )
+            if problem is not None:
+                # before the times are made (2e9 samples: 16 GB)
+                self.add("[time]", "samples", problem)
+                return scenario
             if not stop > start:
                 self.add(
                     "[time]",

@@ -11,6 +11,7 @@ from ..montecarlo import (
     max_deflection,
     object_pose,
     peak_elastic_force,
+    peak_elastic_force_rise,
     trajectory,
 )
 
@@ -134,6 +135,7 @@ class OutputQuantity:
 
 OUTPUTS = {
     "peak_elastic_force": OutputQuantity(peak_elastic_force, True, False, "N"),
+    "peak_force_rise": OutputQuantity(peak_elastic_force_rise, True, False, "N"),
     "max_deflection": OutputQuantity(max_deflection, True, False, "m"),
     "final_pose_error": OutputQuantity(final_pose_error, False, False, "m, rad"),
     "object_pose": OutputQuantity(object_pose, False, True, "m, rad"),

@@ -29,6 +29,7 @@ PARAMETER_QUANTITIES = (
 )
 OUTPUT_QUANTITIES = (
     "peak_elastic_force",
+    "peak_force_rise",
     "max_deflection",
     "final_pose_error",
     "object_pose",
@@ -70,6 +71,15 @@ class StudyTimeTable(Table):
     start: Number | None = None
     stop: Number | None = None
     samples: Annotated[int, Field(ge=2)] | None = None
+
+
+class StudyInitialTable(Table):
+    """`[initial]`: what each sample starts from: `from = "equilibrium"` (its own
+    rest state, the default) or `"scenario"` (the scenario's initial state)."""
+
+    start: Literal["equilibrium", "scenario"] = Field(
+        default="equilibrium", alias="from"
+    )
 
 
 class StudySolverTable(Table):
@@ -123,6 +133,7 @@ class OutputTable(Table):
 
 STUDY_SECTIONS = {
     "sampling": (SamplingTable, "table"),
+    "initial": (StudyInitialTable, "table"),
     "time": (StudyTimeTable, "table"),
     "solver": (StudySolverTable, "table"),
     "parameters": (ParameterTable, "array"),

@@ -14,6 +14,7 @@ from .execution import (
     ACCELERATOR_BATCH_WIDTH as ACCELERATOR_BATCH_WIDTH,
     DEFAULT_BATCH_WIDTH as DEFAULT_BATCH_WIDTH,
     INVALID_SAMPLE as INVALID_SAMPLE,
+    check_needs as check_needs,
     chunk_size_for as chunk_size_for,
     default_batch_width as default_batch_width,
     memory_budget_for as memory_budget_for,
@@ -27,9 +28,14 @@ from .outputs import (
     max_deflection as max_deflection,
     object_pose as object_pose,
     peak_elastic_force as peak_elastic_force,
+    peak_elastic_force_rise as peak_elastic_force_rise,
     trajectory as trajectory,
 )
 from .parameters import Parameter as Parameter
+from .resources import (
+    StudyTooLargeError as StudyTooLargeError,
+    host_memory_budget as host_memory_budget,
+)
 from .sampling import lhs_strata as lhs_strata, sample_parameters as sample_parameters
 from .sensitivity import (
     jacobian_name as jacobian_name,

@@ -17,6 +17,7 @@ import contextlib
 import math
 import numbers
 import platform
+import sys
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -24,6 +25,7 @@ from pathlib import Path
 import diffrax
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
@@ -34,10 +36,12 @@ from .._status import Status
 from .._version import __version__
 from .distributed import barrier, broadcast_from_first, gather, is_first_process
 from .lock import store_lock
+from .resources import StudyTooLargeError, free_space, host_memory_budget, size_text
 from .sampling import lhs_strata
 from .store import (
     FORMAT,
     StoreError,
+    check_store_folder,
     concatenate,
     open_study,
     prepare,
@@ -45,7 +49,13 @@ from .store import (
     to_dataset,
     write_chunk,
 )
-from .study import INVALID_SAMPLE, Study, combined_fingerprint, one_sample
+from .study import (
+    INVALID_SAMPLE,
+    Study,
+    combined_fingerprint,
+    one_sample,
+    sample_start,
+)
 
 DEFAULT_BATCH_WIDTH = 128
 """Samples integrated together on each device unless `run_study` is given a
@@ -81,9 +91,16 @@ _WORK_FIXED = 64 * 1024
 # Trajectory's size: its outputs, kept from when it stops until the chunk ends, and
 # its Trajectory when its outputs are reduced.
 _CHUNK_FACTOR = 2
-# At most this many batches of lanes in a chunk, so the progress bar moves and a
-# killed run loses little.
-_MAX_BATCHES_PER_CHUNK = 64
+# At most this many batches of lanes in a chunk, and at least this many chunks in
+# a study where it has that many batches: a chunk is the work a killed run loses,
+# so it is kept to a small share of the study and to about a minute at most (see
+# `chunk_size_for`).
+_MAX_BATCHES_PER_CHUNK = 16
+MIN_CHUNKS = 8
+# Bytes of a chunk file beyond its numbers (the .npy headers and zip entries of
+# each variable), and of each chunk's record in the manifest.
+_NPZ_BYTES_PER_VARIABLE = 512
+_MANIFEST_BYTES_PER_CHUNK = 160
 
 
 @fast_compile_jit
@@ -96,23 +113,34 @@ def _run_batch(study: Study, mesh: Mesh, index, strata, started, batch_width: in
     # sample starting as one stops (`shard_map` of a `vmap` of
     # `simulate(..., batch_loop=batch_width)`), not waiting for the other devices.
     # Where `started` is false (the padding of a last chunk) the sample stops at
-    # its first step.
+    # its first step. The samples' rest states (`initial="equilibrium"`) are
+    # solved before, outside the `shard_map` (optimistix's BFGS does not trace
+    # inside one), split over the devices as the samples are.
     arrays, static = eqx.partition(study, eqx.is_array)
+    if study.initial == "equilibrium":
+        starts = jax.vmap(jax.vmap(partial(sample_start, study)))(index, strata)
+    else:
+        starts = jnp.zeros(index.shape + (0,))  # not used
 
-    def on_device(arrays, index, strata, started):
-        sample = partial(
-            one_sample, eqx.combine(arrays, static), batch_loop=batch_width
-        )
-        records = jax.vmap(sample)(index[0], strata[0], started[0])
+    def on_device(arrays, index, strata, started, starts):
+        study = eqx.combine(arrays, static)
+
+        def sample(index, strata, started, start):
+            y_start = start if study.initial == "equilibrium" else None
+            return one_sample(
+                study, index, strata, started, batch_width, y_start=y_start
+            )
+
+        records = jax.vmap(sample)(index[0], strata[0], started[0], starts[0])
         return jax.tree.map(lambda x: x[None], records)
 
     return jax.shard_map(
         on_device,
         mesh=mesh,
-        in_specs=(P(), P("samples"), P("samples"), P("samples")),
+        in_specs=(P(), P("samples"), P("samples"), P("samples"), P("samples")),
         out_specs=P("samples"),
         check_vma=False,
-    )(arrays, index, strata, started)
+    )(arrays, index, strata, started, starts)
 
 
 def _template(study: Study) -> dict:
@@ -175,27 +203,35 @@ def memory_budget_for(devices) -> int:
 def chunk_size_for(
     study: Study, memory_budget: int, batch_width: int, n_devices: int = 1
 ) -> int:
-    """The largest chunk (a multiple of `batch_width * n_devices` samples) whose
-    memory fits in `memory_budget` bytes.
+    """The chunk size: a multiple of `batch_width * n_devices` samples (the
+    lanes), the largest whose memory fits in `memory_budget` bytes, of at most
+    `_MAX_BATCHES_PER_CHUNK` (16) batches of lanes and at most a `MIN_CHUNKS`-th
+    (1/8) of the study's batches (at least one batch). A chunk is the unit of
+    storage: a killed run loses at most the chunk it was computing, so a study of
+    a few batches is still cut into several chunks (1,000 samples on 128 lanes:
+    8 chunks of 128).
 
     Per chunk: `batch_width * n_devices` samples in flight, each needing about
     `_WORK_FACTOR` times its trajectory plus `_WORK_FIXED` bytes, and every
     sample's record held three times (device result, host copy, file buffer) and
-    `_CHUNK_FACTOR` times its trajectory.
+    `_CHUNK_FACTOR` times its trajectory. Raises `StudyTooLargeError` when one
+    batch does not fit.
     """
     record = _chunk_bytes_per_sample(study)
     lanes = batch_width * n_devices
     in_flight = lanes * working_memory_per_sample(study)
     needed = _batch_bytes(study, lanes)
     if needed > memory_budget:
-        raise ValueError(
-            f"memory_budget = {memory_budget} bytes is too small for batch_width = "
-            f"{batch_width} on {n_devices} device(s): one batch needs about "
-            f"{needed} bytes; raise memory_budget, or lower "
-            f"batch_width or the number of output times"
+        raise StudyTooLargeError(
+            f"memory_budget = {memory_budget} bytes ({size_text(memory_budget)}) "
+            f"is too small for batch_width = {batch_width} on {n_devices} "
+            f"device(s): one batch needs about {needed} bytes "
+            f"({size_text(needed)}, {len(study.ts)} output times a sample); "
+            f"raise memory_budget, or lower batch_width or the number of output times"
         )
     batches = (memory_budget - in_flight) // (lanes * record)
-    batches = min(batches, _MAX_BATCHES_PER_CHUNK, math.ceil(study.n_samples / lanes))
+    share = max(1, math.ceil(study.n_samples / lanes / MIN_CHUNKS))
+    batches = min(batches, _MAX_BATCHES_PER_CHUNK, share)
     return int(batches * lanes)
 
 
@@ -241,6 +277,78 @@ def _chunk_bytes_per_sample(study: Study) -> int:
     """Memory of each sample of a chunk, integrated or not (see `chunk_size_for`):
     its record held three times and `_CHUNK_FACTOR` times its trajectory."""
     return 3 * _record_bytes(study) + _CHUNK_FACTOR * _trajectory_bytes(study)
+
+
+def store_bytes(study: Study, chunk_size: int, n_chunks: int | None = None) -> int:
+    """Estimated bytes on disk of `n_chunks` chunks of `chunk_size` samples
+    (default: the whole study) and their records in the manifest: each sample's
+    record, plus `_NPZ_BYTES_PER_VARIABLE` per variable and chunk and
+    `_MANIFEST_BYTES_PER_CHUNK` per chunk."""
+    total = math.ceil(study.n_samples / chunk_size)
+    n = total if n_chunks is None else n_chunks
+    samples = min(study.n_samples, n * chunk_size)
+    variables = len(_template(study))
+    per_chunk = variables * _NPZ_BYTES_PER_VARIABLE + _MANIFEST_BYTES_PER_CHUNK
+    return samples * _record_bytes(study) + n * per_chunk + 64 * 1024
+
+
+def host_bytes(study: Study, chunk_size: int) -> int:
+    """Estimated bytes of host memory a run of `study` holds beside its chunk's
+    (`chunk_size_for`): the Latin hypercube design (`4 N D` bytes, made on the
+    device and copied: three times), a flag per chunk, and every sample's record
+    twice (the chunks and their concatenation: `run_study` returns the whole
+    study, read back from its store when it has one)."""
+    strata = 3 * 4 * study.n_samples * study.n_dims if study.sampling == "lhs" else 0
+    flags = math.ceil(study.n_samples / chunk_size)
+    return strata + flags + 2 * study.n_samples * _record_bytes(study)
+
+
+def check_needs(
+    study: Study,
+    chunk_size: int,
+    store: Path | None,
+    chunks_left: int | None = None,
+    host_budget: int | None = None,
+    disk_budget: int | None = None,
+) -> dict[str, int]:
+    """Estimate the host memory and the disk a run needs (`host_bytes`, and
+    `store_bytes` of the `chunks_left` chunks still to compute) and refuse a run
+    above its budget with `StudyTooLargeError` giving the estimate:
+    `host_budget` (default `host_memory_budget()`, half the machine's memory) and
+    `disk_budget` (default: the free space of the store's file system). Returns
+    the estimates, `{"host": bytes, "disk": bytes}`."""
+    what = f"the study of {study.n_samples} samples"
+    disk = 0
+    if store is not None:
+        disk = store_bytes(study, chunk_size, chunks_left)
+        limit = free_space(store) if disk_budget is None else int(disk_budget)
+        if limit is not None and disk > limit:
+            over = (
+                f"over disk_budget = {size_text(limit)}"
+                if disk_budget is not None
+                else f"over the {size_text(limit)} free on its file system"
+            )
+            raise StudyTooLargeError(
+                f"{what} needs about {size_text(disk)} of disk in the store {store} "
+                f"({size_text(_record_bytes(study))} a sample), {over}; draw fewer "
+                f"samples, keep fewer "
+                f"outputs over time or fewer output times, or free space"
+            )
+    memory = host_bytes(study, chunk_size)
+    budget = host_memory_budget() if host_budget is None else int(host_budget)
+    if memory > budget:
+        over = (
+            f"over host_budget = {size_text(budget)}"
+            if host_budget is not None
+            else f"over {size_text(budget)}, half of this machine's memory"
+        )
+        raise StudyTooLargeError(
+            f"{what} needs about {size_text(memory)} of memory for its results and "
+            f"sampling design ({size_text(_record_bytes(study))} a sample), {over}; "
+            f"draw fewer samples, or keep fewer "
+            f"outputs over time or fewer output times"
+        )
+    return {"host": memory, "disk": disk}
 
 
 def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
@@ -302,17 +410,22 @@ def run_study(
     progress: bool = True,
     on_chunk: Callable[[int], None] | None = None,
     trust_callables: bool = False,
+    host_budget: int | None = None,
+    disk_budget: int | None = None,
 ) -> xr.Dataset:
     """Simulate every sample of `study`, chunk by chunk.
 
     **Arguments:**
 
     - `study`: a `Study`.
-    - `store`: a directory for the results (created; resumed when it already holds
-      this study: complete chunks are skipped, damaged ones computed again with a
-      warning naming the file). `None` keeps results in memory. A run holds an
-      exclusive lock on the store: a second run on it fails at once, naming the
-      first.
+    - `store`: a directory for the results: created when it does not exist, used
+      when it is empty, resumed when it already holds this study (complete chunks
+      are kept, damaged ones computed again with a warning naming the file);
+      a folder that holds other files is refused (`StoreError`), so that nothing
+      of the user's is overwritten. `None` keeps results in memory. A run holds
+      an exclusive lock on the store: a second run on it fails at once, naming the
+      first. A store that cannot be written (a full disk, a read-only folder) is a
+      `StoreError` naming the file; the chunks stored before are kept.
     - `chunk_size`: samples per chunk (default: from `memory_budget`; a resumed
       store keeps its own).
     - `batch_width`: samples integrated together by `vmap` on each device (as one
@@ -329,6 +442,13 @@ def run_study(
       device of every process after `jax.distributed.initialize`).
     - `progress`: show a progress bar (samples done, rate, ETA) on the first process.
     - `on_chunk`: called with the chunk number after each chunk is stored.
+    - `host_budget`, `disk_budget`: bytes of host memory and of disk the study
+      may take (default: half of the machine's memory, and the free space of the
+      store's file system). Before the first chunk, the run estimates what it
+      needs (`check_needs`: the results it returns and the sampling design; the
+      store's chunks still to compute) and refuses a study above either budget
+      with `StudyTooLargeError` (a `ValueError`) giving the estimate, as it
+      refuses a batch above `memory_budget`.
     - `trust_callables`: resume a store even though parts of the study cannot be
       verified to be unchanged since it was started. A store is resumed only when
       every part that decides a sample's value is the same (`Study.fingerprint`:
@@ -369,6 +489,7 @@ def run_study(
             chunk = _chunk_size(
                 study, None, None, chunk, memory_budget, width, len(devices)
             )
+            check_needs(study, chunk, None, host_budget=host_budget)
             manifest = _manifest(study, chunk, width)
             done = np.zeros(manifest["n_chunks"], dtype=bool)
         else:
@@ -382,6 +503,8 @@ def run_study(
                 len(devices),
                 devices[0].platform,
                 trust_callables,
+                (host_budget, disk_budget),
+                progress,
             )
         records = _run_chunks(study, store, manifest, done, mesh, progress, on_chunk)
     if store is None:
@@ -415,16 +538,25 @@ def _open_store(
     n_devices,
     platform,
     trust_callables,
+    budgets,
+    progress,
 ) -> tuple[dict, np.ndarray]:
-    """Lock, check and prepare the store on the first process (the lock is held
-    until `stack` closes); every process gets the manifest and the done chunks."""
+    """Check the folder, lock, check the study's needs and prepare the store on
+    the first process (the lock is held until `stack` closes); every process gets
+    the manifest and the done chunks. A folder this run created is removed again
+    when the store is refused."""
     if is_first_process():
+        path = Path(store)
+        created = False
         try:
-            path = Path(store)
+            check_store_folder(path)
+            created = not path.exists()
             try:
                 path.mkdir(parents=True, exist_ok=True)
             except OSError as err:
-                raise StoreError(f"cannot use {path} as a study store: {err}") from None
+                raise StoreError(
+                    f"cannot use {path} as a study store: {err.strerror or err}"
+                ) from None
             stack.enter_context(store_lock(path))
             existing = read_manifest(path)
             if batch_width is None:
@@ -439,14 +571,25 @@ def _open_store(
             chunk_size = _chunk_size(
                 study, path, existing, chunk_size, memory_budget, batch_width, n_devices
             )
+            n_chunks = math.ceil(study.n_samples / chunk_size)
+            recorded = len(existing.get("chunks", {})) if existing else 0
+            needs = check_needs(
+                study, chunk_size, path, max(0, n_chunks - recorded), *budgets
+            )
             manifest = _manifest(study, chunk_size, batch_width)
             manifest = prepare(path, manifest, trust_callables)
         except Exception:
             broadcast_from_first(np.zeros(3, np.int64))  # the others stop too
+            stack.close()  # the lock released, its file removed
+            if created:
+                with contextlib.suppress(OSError):
+                    path.rmdir()  # only if empty
             raise
         broadcast_from_first(np.array([1, chunk_size, batch_width], np.int64))
         done = np.zeros(manifest["n_chunks"], dtype=bool)
         done[[int(c) for c in manifest["chunks"]]] = True
+        if progress:
+            _say_start(study, path, manifest, done, existing is not None, needs)
     else:
         ok, chunk_size, batch_width = broadcast_from_first(
             np.zeros(3, np.int64)
@@ -461,6 +604,28 @@ def _open_store(
     done = broadcast_from_first(done)
     barrier("elasticoop-montecarlo-prepared")
     return manifest, done
+
+
+def _say_start(study, path, manifest, done, resumed: bool, needs: dict) -> None:
+    """One line on stderr: the chunks of the study and the disk they need, or, for
+    a resumed store, how many chunks it kept."""
+    n_chunks, size = manifest["n_chunks"], manifest["chunk_size"]
+    kept = int(done.sum())
+    if resumed:
+        samples = sum(
+            min(size, study.n_samples - int(c) * size) for c in np.flatnonzero(done)
+        )
+        text = (
+            f"resuming the study store {path}: kept {kept} of {n_chunks} chunks "
+            f"({samples} of {study.n_samples} samples), {n_chunks - kept} to compute"
+        )
+    else:
+        text = (
+            f"study store {path}: {study.n_samples} samples in {n_chunks} chunk"
+            f"{'' if n_chunks == 1 else 's'} of {size}, about "
+            f"{size_text(needs['disk'])} on disk"
+        )
+    print(text, file=sys.stderr, flush=True)
 
 
 def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[dict]:

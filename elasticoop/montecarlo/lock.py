@@ -19,7 +19,7 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
-LOCK = ".lock"
+from .store import LOCK, StoreError
 
 
 class StoreLockedError(RuntimeError):
@@ -53,8 +53,11 @@ def _acquire(file: Path) -> int | None:
         try:
             fd = os.open(file, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as err:
-            raise ValueError(
-                f"cannot create the lock file {file} of the study store: {err}"
+            raise StoreError(
+                f"cannot create the lock file {file} of the study store: "
+                f"{err.strerror or err} [errno {err.errno}]; the store's folder must "
+                f"be writable (a read-only store can be read with 'elasticoop "
+                f"montecarlo summary' or open_study)"
             ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -94,9 +97,16 @@ def _acquire(file: Path) -> int | None:
         "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "command": " ".join(sys.argv),
     }
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, json.dumps(record).encode(), 0)
-    os.fsync(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(record).encode(), 0)
+        os.fsync(fd)
+    except OSError as err:  # a full disk
+        os.close(fd)
+        raise StoreError(
+            f"cannot write the lock file {file} of the study store: "
+            f"{err.strerror or err} [errno {err.errno}]; free space and run again"
+        ) from None
     return fd
 
 

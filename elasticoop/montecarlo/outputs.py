@@ -110,6 +110,19 @@ def peak_elastic_force() -> Output:
     return Output(_peak_link_force_magnitude, ("connection",))
 
 
+def _peak_link_force_rise(traj: Trajectory) -> jax.Array:
+    force = _link_force_magnitude(traj)
+    return jnp.max(force, axis=0) - force[0]
+
+
+def peak_elastic_force_rise() -> Output:
+    """$\\max_t |F_{ij}(t)| - |F_{ij}(t_0)|$ [N] per connection: how far the
+    grasp load rises above its value at the start, shape `(connection,)`. For
+    samples that start at rest (`Study(initial="equilibrium")`), the load the
+    motion adds to the static one; zero when the load never rises above it."""
+    return Output(_peak_link_force_rise, ("connection",))
+
+
 def _peak_deflection(traj: Trajectory) -> jax.Array:
     model = _require_mobile(traj.model, "link deflections")
     d = traj.y[:, model.pairs[:, 0], :3] - traj.y[:, model.pairs[:, 1], :3]

@@ -36,6 +36,7 @@ def _outputs_at(study: Study, values: dict) -> tuple[dict, jax.Array]:
     for p in study.parameters:
         inputs = eqx.tree_at(p._select, inputs, values[p.name])
     valid = admissible_inputs(inputs)
+    inputs = study.start(inputs)  # the rest state of these values, if so
     traj = study.simulate(inputs, adjoint=diffrax.ForwardMode())
     status = jnp.where(valid, traj.status, INVALID_SAMPLE).astype(jnp.int32)
     return {name: out(traj) for name, out in study.outputs.items()}, status

@@ -22,6 +22,7 @@ opens with `numpy.load`; `open_study` returns the whole study as an
 `xarray.Dataset`.
 """
 
+import contextlib
 import hashlib
 import io
 import json
@@ -49,7 +50,53 @@ _UNREADABLE = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile)
 
 class StoreError(ValueError):
     """A study store cannot be used: its manifest or a chunk is damaged, it holds
-    another study, or it holds no results yet. The message names the file."""
+    another study, it holds no results yet, its folder holds other files, or it
+    cannot be written (a full disk, a read-only folder). The message names the
+    file."""
+
+
+LOCK = ".lock"  # the lock file of a run (see `lock`)
+
+
+def check_store_folder(path: str | Path) -> None:
+    """Refuse a folder that cannot become or be a study store: a file, or an
+    existing folder that holds files but no study store (a store is created only
+    in a new or empty folder, so that no file of the user's is ever overwritten;
+    the lock file and the temporary files of a run killed before its manifest was
+    written are allowed)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise StoreError(f"the study store {path} exists and is not a folder")
+    if not path.is_dir() or (path / MANIFEST).exists():
+        return
+    try:
+        others = sorted(
+            p.name
+            for p in path.iterdir()
+            if p.name != LOCK and not _TEMPORARY.match(p.name)
+        )
+    except OSError as err:
+        raise StoreError(f"cannot read the folder {path}: {err.strerror}") from None
+    if others:
+        shown = ", ".join(others[:3]) + (
+            f" and {len(others) - 3} more" if len(others) > 3 else ""
+        )
+        raise StoreError(
+            f"{path} is not empty and holds no study store (no {MANIFEST}): it holds "
+            f"{shown}. A study store is created only in a new or empty folder, so "
+            f"that no other file is overwritten: give a new folder"
+        )
+
+
+def _cannot_write(file: Path, err: OSError) -> StoreError:
+    """The `StoreError` of a write into the store that failed (a full disk, a
+    read-only folder, no permission), naming the file."""
+    reason = err.strerror or str(err)
+    return StoreError(
+        f"cannot write {file}: {reason} [errno {err.errno}]. The results stored so "
+        f"far are kept; free space or make the folder writable, then run the same "
+        f"command again to resume"
+    )
 
 
 def chunk_path(path: str | Path, chunk: int) -> Path:
@@ -57,21 +104,34 @@ def chunk_path(path: str | Path, chunk: int) -> Path:
 
 
 def _write_temporary(final: Path, data: bytes) -> Path:
+    """`data` in a hidden temporary file beside `final`, flushed to disk; on a
+    failure (a full disk, a read-only folder) the temporary file is removed and a
+    `StoreError` names `final`."""
     tmp = final.parent / f".{final.name}.{os.getpid()}.tmp"
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise _cannot_write(final, err) from None
     return tmp
 
 
 def _publish(tmp: Path, final: Path) -> None:
-    os.replace(tmp, final)
-    dir_fd = os.open(final.parent, os.O_RDONLY)
     try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
+        os.replace(tmp, final)
+        dir_fd = os.open(final.parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise _cannot_write(final, err) from None
 
 
 def _write_atomic(final: Path, data: bytes) -> None:
@@ -91,11 +151,15 @@ def write_chunk(path: str | Path, chunk: int, arrays: dict, manifest: dict) -> N
     data = buffer.getvalue()
     final = chunk_path(path, chunk)
     tmp = _write_temporary(final, data)
-    manifest["chunks"][str(chunk)] = {
-        "sha256": hashlib.sha256(data).hexdigest(),
-        "bytes": len(data),
-    }
-    write_manifest(path, manifest)
+    record = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+    try:
+        chunks = manifest["chunks"] | {str(chunk): record}
+        write_manifest(path, manifest | {"chunks": chunks})
+    except StoreError:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise
+    manifest["chunks"][str(chunk)] = record
     _publish(tmp, final)
 
 
@@ -203,7 +267,7 @@ def prepare(path: str | Path, manifest: dict, trust_callables: bool = False) -> 
         _check_verified(path, manifest)
     for p in path.iterdir():
         if _TEMPORARY.match(p.name):
-            p.unlink(missing_ok=True)
+            _remove(p)
     for key, record in sorted(recorded.items(), key=lambda kv: int(kv[0])):
         chunk = chunk_path(path, int(key))
         problem = _damage(chunk, record)
@@ -211,16 +275,26 @@ def prepare(path: str | Path, manifest: dict, trust_callables: bool = False) -> 
             manifest["chunks"][key] = record
         else:
             warnings.warn(f"chunk file {chunk} {problem}; it is computed again")
-            chunk.unlink(missing_ok=True)
+            _remove(chunk)
     for p in sorted(path.iterdir()):
         if (m := _CHUNK.match(p.name)) and str(int(m.group(1))) not in recorded:
             warnings.warn(
                 f"chunk file {p} is not recorded in {file}, so it cannot be "
                 f"verified; it is computed again"
             )
-            p.unlink(missing_ok=True)
+            _remove(p)
     write_manifest(path, manifest)
     return manifest
+
+
+def _remove(file: Path) -> None:
+    try:
+        file.unlink(missing_ok=True)
+    except OSError as err:
+        raise StoreError(
+            f"cannot remove {file} from the study store: {err.strerror}; make the "
+            f"folder writable and run again"
+        ) from None
 
 
 def _check_same_study(path: Path, existing: dict, manifest: dict) -> None:

@@ -3,6 +3,7 @@ and what one sample of it computes."""
 
 import hashlib
 import json
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 
 import diffrax
@@ -11,7 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._forces import check_force, force_admissible
+from .._analysis import contact_bodies_held, rest_state
+from .._forces import check_force, force_admissible, pad_to_bodies
 from .._models import AbstractElasticModel, MobileModel
 from .._naming import (
     body_names as checked_body_names,
@@ -27,6 +29,8 @@ from .parameters import _RESERVED, Inputs, Parameter
 from .sampling import draw
 
 SAMPLING = ("random", "lhs")
+# What each sample starts from: its own rest state, or the initial state given.
+INITIAL = ("equilibrium", "given")
 
 # Status of a sample whose drawn parameters are not finite (it is not simulated).
 INVALID_SAMPLE = -1
@@ -72,9 +76,28 @@ class Study(eqx.Module):
     - `sampling`: `"random"` (independent draws) or `"lhs"` (Latin hypercube: each
       scalar parameter's range is cut into `n_samples` strata of equal probability,
       each hit once).
-    - `solver`, `rtol`, `atol`, `max_steps`: passed to `simulate` (see
-      `SimulationOptions`; `solver` is a diffrax solver or its name, default
-      `"tsit5"`).
+    - `initial`: what each sample starts from.
+      `"given"` (the default): `y_init` and `ydot_init`, the same for every sample
+      (unless they are parameters).
+      `"equilibrium"`: each sample starts at rest in its own static equilibrium:
+      the object's pose solves $\\partial\\Pi/\\partial Y = G + F$ with the
+      sample's parameters (`rest_state`), the contact bodies held at their poses
+      in `y_init` (the commanded poses), $F$ the sample's applied forces at rest
+      at the start. The applied forces are facts of the experiment: a feedforward
+      computed from the nominal system (a scenario's `feedforward = "hold"`) stays
+      the number it is, so a sample whose parameters differ starts at rest, while
+      its grasps feel the commanded forces of the experiment. `y_init` is the
+      start of the solver (best: the nominal rest state), `ydot_init` must be
+      zero. A sample without a rest state (the solver does not converge) fails
+      with `Status.NONFINITE`. Use it whenever the study varies what the start
+      depends on (masses, stiffnesses, rest lengths, gravity): with `"given"`,
+      a sample other than the nominal one starts away from its rest, and its
+      outputs include that start-up transient.
+    - `options`: a `SimulationOptions` (solver, tolerances, step budget and
+      singularity thresholds of every sample; default `SimulationOptions()`,
+      Tsit5 at rtol 1e-8, atol 1e-10).
+    - `solver`, `rtol`, `atol`, `max_steps`: deprecated spellings of `options`
+      (a `DeprecationWarning`; they cannot be combined with it).
     - `body_names`, `connection_names`: labels of the `body` and `connection` axes
       in the results (default `object, contact1, ...` and `<body_i>-<body_j>`);
       they name, and do not change, the samples.
@@ -88,6 +111,10 @@ class Study(eqx.Module):
     _output_names: tuple[str, ...] = eqx.field(static=True)
     n_samples: int = eqx.field(static=True)
     sampling: str = eqx.field(static=True)
+    initial: str = eqx.field(static=True)
+    # where each sample's rest state is sought from (free coordinates; the held
+    # ones come from the sample's y_init): the nominal rest state
+    rest_guess: jax.Array | None
     options: SimulationOptions = eqx.field(static=True)
     _leaf_shapes: tuple[tuple[str, tuple[int, ...]], ...] = eqx.field(static=True)
     # (name, shape, dtype) of every entry of one sample's record
@@ -107,12 +134,15 @@ class Study(eqx.Module):
         key=0,
         forces=None,
         sampling: str = "random",
-        solver: diffrax.AbstractSolver | str | None = "tsit5",
-        rtol: float = 1e-8,
-        atol: float = 1e-10,
-        max_steps: int = 100_000,
+        solver: diffrax.AbstractSolver | str | None = None,
+        rtol: float | None = None,
+        atol: float | None = None,
+        max_steps: int | None = None,
         body_names=None,
         connection_names=None,
+        *,
+        initial: str = "given",
+        options: SimulationOptions | None = None,
     ):
         if not isinstance(model, AbstractElasticModel):
             raise ValueError(
@@ -142,13 +172,11 @@ class Study(eqx.Module):
                 f"Study.sampling must be one of {SAMPLING}, got {sampling!r}"
             )
         self.sampling = sampling
-        self.options = SimulationOptions(
-            "tsit5" if solver is None else solver,
-            rtol,
-            atol,
-            max_steps,
-            owner="Study",
-        )
+        self.options = _options(options, solver, rtol, atol, max_steps)
+        if initial not in INITIAL:
+            raise ValueError(f"Study.initial must be one of {INITIAL}, got {initial!r}")
+        self.initial = initial
+        self.rest_guess = None
 
         self.parameters = tuple(parameters)
         self._leaf_shapes = self._check_parameters()
@@ -160,8 +188,35 @@ class Study(eqx.Module):
                 "Study.y_init",
                 self.body_names,
             )
+        if initial == "equilibrium":
+            self.rest_guess = self._nominal_rest_state()
         self._output_names, self._output_fns = self._check_outputs(outputs)
         self._record = self._check_record()
+
+    def _nominal_rest_state(self) -> jax.Array:
+        """The rest state of the nominal inputs (the start of every sample's
+        search); a `ValueError` when there is none, or a parameter varies the
+        initial rates."""
+        if np.any(np.asarray(self.inputs.ydot_init) != 0):
+            raise ValueError(
+                "Study.ydot_init must be zero with initial='equilibrium' (every "
+                "sample starts at rest)"
+            )
+        for p in self.parameters:
+            if p.target == "ydot_init":
+                raise ValueError(
+                    f"Parameter {p.name!r} varies ydot_init, but with "
+                    f"initial='equilibrium' every sample starts at rest"
+                )
+        y = _rest(self.inputs, jnp.asarray(self.ts[0]), self.inputs.y_init)
+        if not np.all(np.isfinite(np.asarray(y))):
+            raise ValueError(
+                "Study(initial='equilibrium'): the nominal system has no rest state "
+                "with the contact bodies held at their poses in y_init (the static "
+                "equilibrium solver did not converge from y_init); start y_init "
+                "nearer to it, or use initial='given'"
+            )
+        return y
 
     def _check_parameters(self) -> tuple:
         shapes = {}
@@ -338,6 +393,21 @@ class Study(eqx.Module):
     def max_steps(self) -> int:
         return int(self.options.max_steps)
 
+    def start(self, inputs: Inputs) -> Inputs:
+        """`inputs` with the initial state of the study's rule (`initial`): as
+        given, or at rest in the static equilibrium of their parameters (the
+        contact bodies held at their poses in `inputs.y_init`; NaN where the
+        solver does not converge, so the sample fails). Traceable and
+        differentiable (the rest state by the implicit function theorem)."""
+        if self.initial != "equilibrium":
+            return inputs
+        y_rest = _rest(inputs, jnp.asarray(self.ts[0]), self.rest_guess)
+        return eqx.tree_at(
+            lambda i: (i.y_init, i.ydot_init),
+            inputs,
+            (y_rest, jnp.zeros_like(y_rest)),
+        )
+
     def simulate(self, inputs: Inputs, **overrides):
         """`simulate` of one sample's `inputs` with the study's times, solver and
         tolerances (never raising: failures are reported in `Trajectory.status`)."""
@@ -356,6 +426,7 @@ class Study(eqx.Module):
             "n_samples": self.n_samples,
             "key": np.asarray(self.key_data).tolist(),
             "sampling": self.sampling,
+            "initial": self.initial,
             "ts": np.asarray(self.ts).tolist(),
             "solver": self.options.solver_name,
             "rtol": self.rtol,
@@ -392,7 +463,7 @@ class Study(eqx.Module):
         inputs = self.inputs
         parts = {
             "settings": Digest().value(
-                (self.n_samples, self.key_data, self.sampling, self.ts)
+                (self.n_samples, self.key_data, self.sampling, self.initial, self.ts)
             ),
             "solver options": Digest().value(self.options),
             "model": Digest().value(inputs.model),
@@ -434,6 +505,57 @@ class Study(eqx.Module):
         return combined_fingerprint(self.describe(), self.fingerprint_parts())
 
 
+def _options(options, solver, rtol, atol, max_steps) -> SimulationOptions:
+    """The study's `SimulationOptions`: `options`, or built from the deprecated
+    keywords."""
+    given = {
+        name: value
+        for name, value in (
+            ("solver", solver),
+            ("rtol", rtol),
+            ("atol", atol),
+            ("max_steps", max_steps),
+        )
+        if value is not None
+    }
+    if given:
+        names = ", ".join(given)
+        if options is not None:
+            raise ValueError(
+                f"Study: give the solver settings in options only, not also as {names}"
+            )
+        warnings.warn(
+            f"Study({names}=...) is deprecated: pass options=SimulationOptions("
+            f"{', '.join(f'{k}=...' for k in given)}) instead",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        return SimulationOptions(**given, owner="Study")
+    if options is None:
+        return SimulationOptions(owner="Study")
+    if not isinstance(options, SimulationOptions):
+        raise ValueError(
+            f"Study.options must be a SimulationOptions, got {type(options).__name__}"
+        )
+    return options
+
+
+def _rest(inputs: Inputs, t0, guess) -> jax.Array:
+    """The rest state of `inputs` (NaN where the solver does not converge): the
+    free coordinates from `guess`, the contact bodies held at their poses in
+    `inputs.y_init`, under the applied forces at rest at `t0` in `guess`."""
+    model = inputs.model
+    n = model.n_bodies
+    held = contact_bodies_held(n)
+    start = jnp.where(held, inputs.y_init, guess)
+    if inputs.forces is None:
+        forces = jnp.zeros((n, 6))
+    else:
+        at_rest = inputs.forces(t0, start, jnp.zeros_like(start))
+        forces = pad_to_bodies(jnp.asarray(at_rest, jnp.float64), n)
+    return rest_state(model, start, forces, held, throw=False)
+
+
 def _connection_names(model, given, bodies) -> tuple[str, ...] | None:
     """The connections' labels of a `MobileModel` (`None` for other models)."""
     if not isinstance(model, MobileModel):
@@ -473,19 +595,15 @@ class _Marker:
     """A leaf that marks the one a parameter selects."""
 
 
-def one_sample(
-    study: Study, index, strata_row, started=True, batch_loop: bool | int = False
-) -> dict:
-    """Draw, simulate and reduce sample `index`: its record (sample number,
-    status, event time, parameter values, outputs). A sample whose draws are not
-    finite, or give a model or force that no constructor would accept (a mass, a
-    principal moment or, for the mobile model, a stiffness, damping or rest length
-    out of range, a lift of no duration: `AbstractElasticModel.admissible`,
-    `force_admissible`), is simulated at the nominal values
-    and reported as `INVALID_SAMPLE`, with the values drawn. `batch_loop`: passed to
-    `simulate` (a `vmap` over samples integrates them in one loop). Where
-    `started` is false the sample is not simulated: its start is made NaN, so the
-    solve stops at its first step (the padding of a batch)."""
+def sample_inputs(study: Study, index, strata_row) -> tuple[Inputs, dict, jax.Array]:
+    """Draw sample `index`: its inputs (before its start is set, see
+    `Study.start`), the values drawn by parameter name, and whether they are
+    valid. A sample whose draws are not finite, or give a model or force that no
+    constructor would accept (a mass, a principal moment or, for the mobile
+    model, a stiffness, damping or rest length out of range, a lift of no
+    duration: `AbstractElasticModel.admissible`, `force_admissible`), gets the
+    nominal values in its inputs (and is reported as `INVALID_SAMPLE`), with the
+    values drawn."""
     raw = draw(study, index, strata_row)
     valid = jnp.array(True)
     for value in raw.values():
@@ -500,6 +618,40 @@ def one_sample(
         inputs = p.apply(inputs, jnp.where(valid, raw[p.name], fallback))
     # the values drawn (those simulated where valid)
     values = {p.name: p.nominal(drawn) for p in study.parameters}
+    return inputs, values, valid
+
+
+def sample_start(study: Study, index, strata_row) -> jax.Array:
+    """The initial state of sample `index` (`Study.start`), `(bodies, 6)`."""
+    inputs, _, _ = sample_inputs(study, index, strata_row)
+    return study.start(inputs).y_init
+
+
+def one_sample(
+    study: Study,
+    index,
+    strata_row,
+    started=True,
+    batch_loop: bool | int = False,
+    y_start=None,
+) -> dict:
+    """Draw (`sample_inputs`), start (`Study.start`), simulate and reduce sample
+    `index`: its record (sample number, status, event time, parameter values,
+    outputs); an invalid sample is simulated at the nominal values and reported
+    as `INVALID_SAMPLE`. `batch_loop`: passed to `simulate` (a `vmap` over
+    samples integrates them in one loop). `y_start`: the sample's initial state
+    when it is computed apart (`sample_start`; at rest). Where `started` is false
+    the sample is not simulated: its start is made NaN, so the solve stops at its
+    first step (the padding of a batch)."""
+    inputs, values, valid = sample_inputs(study, index, strata_row)
+    if y_start is None:
+        inputs = study.start(inputs)
+    else:
+        inputs = eqx.tree_at(
+            lambda i: (i.y_init, i.ydot_init),
+            inputs,
+            (y_start, jnp.zeros_like(y_start)),
+        )
     inputs = eqx.tree_at(
         lambda i: i.y_init, inputs, jnp.where(started, inputs.y_init, jnp.nan)
     )
