@@ -80,3 +80,23 @@ def run_files_bytes(
     if plots:
         sizes["plots"] = PLOTS_BYTES
     return sizes
+
+
+# The largest magnitude of a number in a scenario file or a data file, in SI units
+# (kg, m, s, N, rad): beyond it the products the simulation forms (weights,
+# energies, squared residuals) leave float64's range, and no physical quantity of
+# a manipulation task comes near it.
+MAX_MAGNITUDE = 1e15
+
+
+def magnitude_problem(value: float, factor: float = 1.0) -> str | None:
+    """A message when `value` (times `factor`, its unit's factor to SI) lies beyond
+    `MAX_MAGNITUDE`; `None` when it does not, or is not finite (checked apart)."""
+    import math
+
+    if not math.isfinite(value) or abs(value * factor) <= MAX_MAGNITUDE:
+        return None
+    return (
+        f"{value!r} lies beyond ±{MAX_MAGNITUDE:g}, the largest magnitude accepted "
+        "(in SI units)"
+    )
