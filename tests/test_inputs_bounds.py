@@ -482,3 +482,17 @@ def test_byte_order_marks_in_scenario_and_data_files_are_read(tmp_path, capsys):
     path = write(tmp_path, IMMOBILE)
     path.write_bytes(bom + path.read_bytes())
     assert main(["check", str(path)]) == 0, capsys.readouterr().err
+
+
+def test_control_characters_in_the_name_are_named(tmp_path, capsys):
+    # Was: accepted; `run` simulated, then failed writing trajectory.nc with exit 1,
+    # "internal error (ValueError: VLEN strings do not support embedded NULLs)".
+    _rejected(
+        tmp_path,
+        capsys,
+        TINY.replace('name = "tiny"', 'name = "tiny\\u0000"'),
+        "table (top level), key 'name'",
+        "holds control characters (U+0000)",
+    )
+    text = TINY.replace('name = "tiny"', 'name = "tiny"\ndescription = "a\\tb\\nc"')
+    assert main(["check", str(write(tmp_path, text, "ok.toml")), "-q"]) == 0

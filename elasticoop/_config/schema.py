@@ -135,11 +135,34 @@ def _motion(value):
     return value
 
 
-class ScenarioInfo(Table):
-    """Top-level keys: `name` (default: the file name) and `description`."""
+def _text(allowed: str):
+    """A validator of text without control characters other than `allowed` (a NUL
+    cannot be stored in the netCDF file's attributes, and the others garble
+    the reports)."""
 
-    name: str | None = Field(default=None, min_length=1)
-    description: str = ""
+    def check(value: str) -> str:
+        bad = sorted({f"U+{ord(ch):04X}" for ch in value if _control(ch, allowed)})
+        if bad:
+            raise ValueError(
+                f"holds control characters ({', '.join(bad)}), got {value[:40]!r}"
+                + ("..." if len(value) > 40 else "")
+            )
+        return value
+
+    return AfterValidator(check)
+
+
+def _control(ch: str, allowed: str) -> bool:
+    return ch not in allowed and (ord(ch) < 32 or 0x7F <= ord(ch) < 0xA0)
+
+
+class ScenarioInfo(Table):
+    """Top-level keys: `name` (default: the file name) and `description` (text
+    without control characters; the description may hold line breaks and
+    tabs)."""
+
+    name: Annotated[str, _text("")] | None = Field(default=None, min_length=1)
+    description: Annotated[str, _text("\n\t\r")] = ""
 
 
 class ModelTable(Table):
