@@ -455,3 +455,30 @@ def test_netcdf_times_that_are_dates_or_milliseconds_are_refused(tmp_path, capsy
         other = tmp_path / "dated.nc"
         changed.to_netcdf(other, engine="h5netcdf")
         identify_refuses(tmp_path, capsys, other, "column 'time': units", words)
+
+
+def test_noise_levels_out_of_range_are_named(scenario, tmp_path):
+    # Was: accepted: a noise level of 1e-300 weighs its residuals by 1e300, whose
+    # squares overflow float64.
+    t, y = known_motion()
+    sigma = [1e-3] * 12
+    sigma[4] = 1e-300
+    path = write_csv(tmp_path / "m.csv", t, y, sigma=sigma)
+    with pytest.raises(DataFileError, match="column 'obj.theta', line 3") as info:
+        load_experiment(path, scenario)
+    assert "(sigma): the noise level '1e-300' lies below 1e-15" in str(info.value)
+
+
+def test_a_file_of_too_many_cells_is_refused_before_it_is_split(
+    scenario, tmp_path, monkeypatch
+):
+    # (a file near the data-file limit of 1 GiB held as Python strings took many
+    # times its size in memory before the samples' own limit was checked)
+    from elasticoop._config import measured_csv
+
+    t, y = known_motion()
+    path = write_csv(tmp_path / "m.csv", t, y)
+    monkeypatch.setattr(measured_csv, "MAX_CSV_CELLS", 40)
+    monkeypatch.setattr(measured_csv, "_rows", None)  # never reached
+    with pytest.raises(DataFileError, match="about 6[0-9] cells, over the limit of 40"):
+        load_experiment(path, scenario)

@@ -18,7 +18,7 @@ import numpy as np
 
 from .._naming import coordinate_names
 from .data_files import TIME_COLUMNS
-from .limits import magnitude_problem
+from .limits import MAX_MAGNITUDE, format_bytes, magnitude_problem
 from .measured_samples import MeasuredData, check_samples_size
 from .problems import DataFileError, DataProblem
 
@@ -69,6 +69,9 @@ def read_measured_csv(path: pathlib.Path, source: str, scenario) -> MeasuredData
         raise DataFileError(
             source, [DataProblem("", "", "not a text file (not UTF-8)")]
         ) from None
+    too_many = check_cell_count(text)
+    if too_many:
+        raise DataFileError(source, [DataProblem("", "", too_many)])
     rows = _rows(text, add)
     if problems:  # lines that are not CSV
         raise DataFileError(source, problems)
@@ -111,6 +114,26 @@ def read_measured_csv(path: pathlib.Path, source: str, scenario) -> MeasuredData
     if problems:
         raise DataFileError(source, problems)
     return _assemble(columns, values, times, sigma, n_bodies)
+
+
+# The cells of a CSV file read at most: each is held as text while the file is
+# checked (about 70 bytes of memory each), so this keeps reading a file near
+# 2 GiB of memory; about 2.8 million samples of 12 coordinates.
+MAX_CSV_CELLS = 2**25
+CELL_MEMORY_BYTES = 70
+
+
+def check_cell_count(text: str) -> str | None:
+    """A message, before the file is split into cells, when it holds more than
+    `MAX_CSV_CELLS` (counted as its commas plus its lines: an upper bound)."""
+    cells = text.count(",") + text.count("\n") + 1
+    if cells <= MAX_CSV_CELLS:
+        return None
+    return (
+        f"the file holds about {cells} cells, over the limit of {MAX_CSV_CELLS} "
+        f"(reading them takes about {format_bytes(cells * CELL_MEMORY_BYTES)} of "
+        "memory); resample the file or split it into several experiments"
+    )
 
 
 def _rows(text: str, add) -> list[tuple[int, list[str]]]:
@@ -354,8 +377,14 @@ def _noise(columns, noise, add) -> dict[int, float]:
             )
             continue
         too_large = magnitude_problem(value)
-        if too_large:
-            add(column.label, f"line {number} ({NOISE_ROW})", too_large)
+        if too_large or value < 1 / MAX_MAGNITUDE:
+            add(
+                column.label,
+                f"line {number} ({NOISE_ROW})",
+                too_large
+                or f"the noise level {shown(cells[c].strip())} lies below "
+                f"{1 / MAX_MAGNITUDE:g} in SI units, the smallest accepted",
+            )
             continue
         out[c] = value
     return out

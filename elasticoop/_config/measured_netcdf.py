@@ -204,4 +204,15 @@ def _sigma(ds, name, order, coords, factors, add) -> np.ndarray | None:
     if not np.all(np.isfinite(values) & (values > 0)):
         add(name, "", "noise levels must be positive finite numbers")
         return None
+    outside = (values < 1 / MAX_MAGNITUDE) | (values > MAX_MAGNITUDE)
+    if np.any(outside):
+        b, c = (int(i) for i in np.argwhere(outside)[0])
+        add(
+            name,
+            "",
+            f"noise levels must lie within {1 / MAX_MAGNITUDE:g} and "
+            f"{MAX_MAGNITUDE:g} (SI units), got {values[b, c]!r} at body {b}, "
+            f"coordinate {c}",
+        )
+        return None
     return values
