@@ -115,6 +115,11 @@ def test_check_reports_what_a_samples_file_costs(tmp_path, capsys):
     assert "2 of them handed to the solver as jump times" in out, out
     # 11 output samples of 49 numbers (2 bodies, 1 connection), 8 bytes each
     assert f"results: about {11 * 49 * 8 / 1024:.3g} KiB (limit 1 GiB)" in out, out
+    # on disk: 61 numbers per sample (the applied forces too), 8 bytes each in
+    # trajectory.nc and at most 25 in trajectory.csv, 64 KiB for the netCDF layout
+    # and for summary.json, 2 MiB for the plots
+    files = 11 * 61 * (8 + 25) + 2 * 64 * 1024 + 2 * 2**20
+    assert f"the files of a run take up to {files / 2**20:.3g} MiB on disk" in out
 
 
 # -- sizes, step budgets and large integers ---------------------------------------
