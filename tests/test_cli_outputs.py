@@ -7,6 +7,9 @@ import json
 import math
 import os
 import pathlib
+import shutil
+import subprocess
+import sys
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -225,15 +228,15 @@ def test_a_parent_folder_without_write_permission_exits_2(
 def test_a_failed_write_leaves_the_previous_results_as_they_were(
     lone_body, previous_run, monkeypatch, capsys, failure, code, message
 ):
-    import xarray as xr
+    from elasticoop._io import files
 
     before = contents(previous_run)
 
-    def truncated_netcdf(ds, path, *args, **kwargs):  # killed while writing
+    def truncated_netcdf(path, data):  # killed while writing
         pathlib.Path(path).write_bytes(b"\x89HDF\r\n")
         raise failure
 
-    monkeypatch.setattr(xr.Dataset, "to_netcdf", truncated_netcdf)
+    monkeypatch.setattr(files, "write_bytes", truncated_netcdf)
     args = ["run", str(lone_body), "-o", str(previous_run), "--overwrite", "-q"]
     assert main(args) == code
     err = capsys.readouterr().err
@@ -296,3 +299,241 @@ def test_modes_refuses_a_non_empty_output_folder_before_solving(
     err = capsys.readouterr().err
     assert "is not empty" in err and "--overwrite" in err and "Traceback" not in err
     assert contents(outdir) == {"modes.json": b"{}"}
+
+
+# -- interrupted replacements, full disks (issue: outputs never lost) -------------
+
+
+def hidden(folder) -> set[str]:
+    """The hidden folders beside `folder` that a write into it makes."""
+    return {name for name in siblings(folder) if name.startswith(f".{folder.name}.")}
+
+
+def test_leftovers_of_a_run_killed_between_the_renames_are_recovered(
+    lone_body, previous_run, monkeypatch, capsys
+):
+    # Was: SIGKILL between the two renames left no output folder; the previous
+    # results survived only in .out.previous-* beside .out.partial-*, and the next
+    # run left both behind (and wrote a new folder where the old one had been).
+    # These are the folders that run left.
+    before = contents(previous_run)
+    older = previous_run.with_name(".out.previous-0123abcd")
+    newer = previous_run.with_name(".out.partial-89abcdef")
+    previous_run.rename(older)
+    newer.mkdir()
+    (newer / "trajectory.nc").write_bytes(b"\x89HDF\r\n")  # maybe incomplete
+    monkeypatch.setattr(run, "simulate_scenario", not_simulated)
+    assert main(["run", str(lone_body), "-o", str(previous_run), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert f"note: {previous_run} was missing after an interrupted run" in err, err
+    assert "restored it from .out.previous-0123abcd: the previous results" in err
+    assert "removed .out.partial-89abcdef beside" in err
+    assert f"the output folder {previous_run} is not empty" in err  # then refused
+    assert contents(previous_run) == before
+    assert not hidden(previous_run)
+
+
+def test_complete_results_of_a_killed_swap_take_the_folder_s_place(
+    lone_body, previous_run, monkeypatch, capsys
+):
+    before = contents(previous_run)
+    complete = previous_run.with_name(".out.complete-0123abcd")
+    previous_run.rename(complete)
+    stale = previous_run.with_name(".out.previous-89abcdef")
+    stale.mkdir()
+    (stale / "summary.json").write_text("{}")
+    probe = previous_run.with_name(".out.probe-00000000")
+    probe.mkdir()
+    monkeypatch.setattr(run, "simulate_scenario", not_simulated)
+    assert main(["run", str(lone_body), "-o", str(previous_run), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "restored it from .out.complete-0123abcd: the complete results" in err
+    assert contents(previous_run) == before
+    assert not hidden(previous_run)
+
+
+def test_a_write_in_progress_is_never_touched_by_another_run(
+    lone_body, previous_run, monkeypatch, capsys
+):
+    from elasticoop._io import folder
+
+    staging = previous_run.with_name(".out.partial-0123abcd")
+    staging.mkdir()
+    lock = folder._lock(staging)  # as the run writing into it holds it
+    if lock is None:
+        pytest.skip("no file locks on this system")
+    try:
+        monkeypatch.setattr(run, "simulate_scenario", not_simulated)
+        assert main(["run", str(lone_body), "-o", str(previous_run), "-q"]) == 2
+        assert "note:" not in capsys.readouterr().err
+        assert staging.is_dir()
+    finally:
+        os.close(lock)
+
+
+def test_overwrite_swaps_the_folders_in_one_step_on_linux(
+    lone_body, previous_run, monkeypatch, capsys
+):
+    if not os.uname().sysname == "Linux":
+        pytest.skip("renameat2(RENAME_EXCHANGE) is Linux's")
+    from elasticoop._io import folder
+
+    if not folder._exchange(previous_run, previous_run):  # a no-op swap
+        pytest.skip("the file system cannot swap folders")
+    real_rename = os.rename
+
+    def rename(src, dst, *args, **kwargs):
+        # the output folder is never renamed away: it always exists
+        assert pathlib.Path(src) != previous_run, "the output folder was moved away"
+        return real_rename(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "rename", rename)
+    args = ["run", str(lone_body), "-o", str(previous_run), "--no-plots", "-q"]
+    assert main([*args, "--overwrite"]) == 0, capsys.readouterr().err
+    assert {p.name for p in previous_run.iterdir()} == RESULTS
+    assert not hidden(previous_run)
+
+
+# The command line in a child process whose dying cannot take pytest with it:
+# `SETUP` runs first (a fault to inject), then `elasticoop ARGS`.
+CHILD = """\
+import sys
+{setup}
+from elasticoop._cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def run_child(setup: str, *args) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", CHILD.format(setup=setup), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+KILL_BETWEEN_RENAMES = """\
+import os, signal
+from elasticoop._io import folder
+folder._exchange = lambda a, b: False  # the two renames of other systems
+real_rename = os.rename
+def rename(src, dst):
+    if ".complete-" in os.fspath(src):  # the output folder is renamed away
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real_rename(src, dst)
+os.rename = rename
+"""
+
+
+@pytest.mark.slow
+def test_sigkill_between_the_renames_loses_nothing(lone_body, previous_run, capsys):
+    # Was: no output folder after the kill, and the next run left the hidden
+    # .out.partial-* and .out.previous-* folders behind.
+    args = ["run", lone_body, "-o", previous_run, "--no-plots", "-q", "--overwrite"]
+    killed = run_child(KILL_BETWEEN_RENAMES, *args)
+    assert killed.returncode == -9, killed.stderr
+    assert not previous_run.exists()
+    assert {n.split("-")[0] for n in hidden(previous_run)} == {
+        ".out.complete",
+        ".out.previous",
+    }
+    # the next command that writes there finishes the swap the killed run began
+    assert main([str(a) for a in args[:-1]]) == 2  # (then refuses: not empty)
+    err = capsys.readouterr().err
+    assert "the complete results of the run that was interrupted" in err, err
+    assert {p.name for p in previous_run.iterdir()} == RESULTS
+    assert not hidden(previous_run)
+
+
+FILE_SIZE_LIMIT = """\
+import resource, signal
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a failed write, not a signal
+resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+"""
+
+
+@pytest.mark.slow
+def test_a_failed_netcdf_write_is_exit_2_not_signal_11(lone_body, previous_run):
+    # Was: HDF5 writing trajectory.nc straight to a disk that refuses the bytes
+    # (here a file-size limit, which needs no privileges; a full disk fails the
+    # same way) crashed the process with signal 11.
+    before = contents(previous_run)
+    args = ["run", lone_body, "-o", previous_run, "--no-plots", "--overwrite"]
+    out = run_child(FILE_SIZE_LIMIT, *args)
+    assert out.returncode == 2, (out.returncode, out.stderr[-2000:])
+    assert f"could not write the results into {previous_run}" in out.stderr
+    assert "File too large" in out.stderr and "Traceback" not in out.stderr
+    assert contents(previous_run) == before
+    assert not hidden(previous_run)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 1 MiB file system (tmpfs: needs root, as CI runs); skipped where it
+    cannot be mounted."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    if shutil.which("mount") is None or os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    made = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mount)],
+        capture_output=True,
+    )
+    if made.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {made.stderr.decode()[:200]}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+def fill(disk, leave: int) -> None:
+    """Fill `disk` up to `leave` bytes of free space."""
+    free = shutil.disk_usage(disk).free
+    with open(disk / "filler", "wb") as file:
+        file.write(b"\0" * max(free - leave, 0))
+
+
+@pytest.mark.slow
+def test_a_full_disk_is_refused_before_simulating_with_the_estimate(
+    lone_body, small_disk, monkeypatch, capsys
+):
+    # Was: simulated, then signal 11 while writing trajectory.nc.
+    outdir = small_disk / "out"
+    assert main(["run", str(lone_body), "-o", str(outdir), "--no-plots", "-q"]) == 0
+    before = contents(outdir)
+    fill(small_disk, 16 * 1024)
+    from elasticoop._cli import _common
+
+    # (checked in `simulate_scenario`, before the run's progress meter is made)
+    monkeypatch.setattr(_common, "progress_overrides", not_simulated)
+    args = ["run", str(lone_body), "-o", str(outdir), "--no-plots", "--overwrite"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"not enough free space for the results in {outdir}" in err, err
+    assert "the run writes up to" in err and "trajectory.nc" in err
+    assert "Traceback" not in err
+    assert contents(outdir) == before and not hidden(outdir)
+
+
+FREE_SPACE_UNKNOWN = """\
+from elasticoop._io import files
+files.free_bytes = lambda path: 2**40  # as if the disk filled up after the check
+"""
+
+
+@pytest.mark.slow
+def test_a_disk_that_fills_while_writing_is_exit_2_not_signal_11(lone_body, small_disk):
+    # Was: signal 11 from HDF5 writing trajectory.nc onto the full disk.
+    outdir = small_disk / "out"
+    assert main(["run", str(lone_body), "-o", str(outdir), "--no-plots", "-q"]) == 0
+    before = contents(outdir)
+    fill(small_disk, 8 * 1024)
+    args = ["run", lone_body, "-o", outdir, "--no-plots", "--overwrite"]
+    out = run_child(FREE_SPACE_UNKNOWN, *args)
+    assert out.returncode == 2, (out.returncode, out.stderr[-2000:])
+    assert f"could not write the results into {outdir}" in out.stderr
+    assert "No space left on device" in out.stderr
+    assert "Traceback" not in out.stderr
+    assert contents(outdir) == before and not hidden(outdir)

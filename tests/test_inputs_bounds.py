@@ -115,6 +115,11 @@ def test_check_reports_what_a_samples_file_costs(tmp_path, capsys):
     assert "2 of them handed to the solver as jump times" in out, out
     # 11 output samples of 49 numbers (2 bodies, 1 connection), 8 bytes each
     assert f"results: about {11 * 49 * 8 / 1024:.3g} KiB (limit 1 GiB)" in out, out
+    # on disk: 61 numbers per sample (the applied forces too), 8 bytes each in
+    # trajectory.nc and at most 25 in trajectory.csv, 64 KiB for the netCDF layout
+    # and for summary.json, 2 MiB for the plots
+    files = 11 * 61 * (8 + 25) + 2 * 64 * 1024 + 2 * 2**20
+    assert f"the files of a run take up to {files / 2**20:.3g} MiB on disk" in out
 
 
 # -- sizes, step budgets and large integers ---------------------------------------
@@ -378,3 +383,121 @@ def test_loading_is_quiet_about_what_it_reports(tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(ScenarioError, match="holds no numbers"):
             load_scenario(write(tmp_path, IMMOBILE))
+
+
+# -- huge numbers and byte-order marks (the second audit) -------------------------
+
+WEIGHT = """\
+[forces.pose_tracking]
+lift_height = 0.1
+lift_time = 0.1
+kp = [1e3, 1e3, 1e3, 1.0, 1.0, 1.0]
+kd = [10.0, 10.0, 10.0, 0.1, 0.1, 0.1]
+feedforward = "weight"
+"""
+
+
+@pytest.mark.parametrize(
+    "feedforward, start",
+    [("weight", ""), ("hold", ""), ("hold", '[initial]\nfrom = "equilibrium"\n')],
+)
+def test_a_mass_of_1e308_is_named(tmp_path, capsys, feedforward, start):
+    # Was: "weight": a traceback ("PoseTracking.feedforward must be finite") and
+    # exit 1; "hold" from the given poses: accepted, then NaN at t = 0 (exit 3);
+    # "hold" from the equilibrium: "the stiffness restricted to the 6 free ones
+    # is singular", which names neither the mass nor its value.
+    text = TINY.replace(CONSTANT, WEIGHT.replace('"weight"', f'"{feedforward}"'))
+    text = text.replace("velocity = [0.0, 0.0, 0.5]\n", "")
+    text = text.replace("angle_rates = { degrees = [0.0, 0.0, 30.0] }\n", "")
+    text = text.replace("[initial.obj]", start + "[initial.obj]")
+    _rejected(
+        tmp_path,
+        capsys,
+        text.replace("mass = 1.0", "mass = 1e308"),
+        "table [[bodies]] #1 (obj), key 'mass'",
+        "1e+308 lies beyond ±1e+15, the largest magnitude accepted",
+    )
+    # the largest accepted value is accepted
+    path = write(tmp_path, text.replace("mass = 1.0", "mass = 1e15"), "ok.toml")
+    assert main(["check", str(path), "-q"]) == 0, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "table, old, new, where",
+    [
+        ("TINY", "stop = 0.2", "stop = 1e300", "table [time], key 'stop'"),
+        ("TINY", "1e3, 1e3, 1e3, 5.0", "1e3, 1e300, 1e3, 5.0", "key 'stiffness[1]'"),
+        (
+            "TINY",
+            "position = [0.0, 0.0, 1.0]",
+            "position = [0.0, -1e20, 1.0]",
+            "key 'position[1]'",
+        ),
+        ("TINY", "gravity = 9.81", "gravity = 1e300", "table [model], key 'gravity'"),
+        (
+            "TINY",
+            "15.0, 0.0, 0.0, 0.0]",
+            "1e300, 0.0, 0.0, 0.0]",
+            "table [forces.constant]",
+        ),
+    ],
+)
+def test_huge_numbers_anywhere_in_a_scenario_are_named(
+    tmp_path, capsys, table, old, new, where
+):
+    # Was: accepted, then a run that stops with NaN at t = 0 or overflows (exit 3)
+    text = globals()[table]
+    assert old in text
+    _rejected(tmp_path, capsys, text.replace(old, new), where, "lies beyond ±1e+15")
+
+
+def test_huge_entries_of_data_files_are_named(tmp_path, capsys):
+    # Was: a force sample or a stiffness entry of 1e300 was accepted and the run
+    # stopped with NaN (exit 3).
+    ts = np.linspace(0.0, 0.2, 5)
+    path = _samples_scenario(tmp_path, ts, np.where(ts > 0.1, 1e300, 15.0))
+    _rejected(
+        tmp_path,
+        capsys,
+        path.read_text(),
+        "table [forces], key 'samples'",
+        "file 'f.csv', column 'grip.fz', data row 4: 1e+300 lies beyond ±1e+15",
+    )
+    K = coupling([1e3] * 6)
+    K[0, 0] = K[6, 6] = 1e300
+    np.savetxt(tmp_path / "K.csv", K, delimiter=",")
+    np.save(tmp_path / "D.npy", 0.01 * coupling([1e3] * 6))
+    _rejected(
+        tmp_path,
+        capsys,
+        IMMOBILE,
+        "table [immobile], key 'K'",
+        "file 'K.csv', entry [0][0]: 1e+300 lies beyond ±1e+15",
+    )
+
+
+def test_byte_order_marks_in_scenario_and_data_files_are_read(tmp_path, capsys):
+    # Was: a TOML file starting with a byte-order mark was "not valid TOML:
+    # Invalid statement (at line 1, column 1)"; a matrix CSV with one "could not be
+    # read as numbers: could not convert string '\ufeff...'".
+    bom = b"\xef\xbb\xbf"
+    np.savetxt(tmp_path / "K.csv", coupling([1e3] * 6), delimiter=",")
+    (tmp_path / "K.csv").write_bytes(bom + (tmp_path / "K.csv").read_bytes())
+    np.save(tmp_path / "D.npy", 0.01 * coupling([1e3] * 6))
+    path = write(tmp_path, IMMOBILE)
+    path.write_bytes(bom + path.read_bytes())
+    assert main(["check", str(path)]) == 0, capsys.readouterr().err
+
+
+def test_control_characters_in_the_name_are_named(tmp_path, capsys):
+    # Was: accepted; `run` simulated, then failed writing trajectory.nc with exit 1,
+    # "internal error (ValueError: VLEN strings do not support embedded NULLs)".
+    _rejected(
+        tmp_path,
+        capsys,
+        TINY.replace('name = "tiny"', 'name = "tiny\\u0000"'),
+        "table (top level), key 'name'",
+        "holds control characters (U+0000)",
+    )
+    text = TINY.replace('name = "tiny"', 'name = "tiny"\ndescription = "a\\tb\\nc"')
+    assert main(["check", str(write(tmp_path, text, "ok.toml")), "-q"]) == 0

@@ -350,3 +350,135 @@ def test_savitzky_golay_leaves_out_windows_with_missing_samples():
     assert np.all(np.isnan(got[hit, 0]))
     np.testing.assert_allclose(got[~hit, 0], want[~hit, 0], rtol=1e-12)
     np.testing.assert_allclose(got[:, 1], want[:, 1], rtol=1e-12)
+
+
+# -- unclear errors of the second audit (issue: every case a clear message) -------
+
+
+def identify_refuses(tmp_path, capsys, data, *words):
+    """`elasticoop identify` refuses the data file `data` before fitting: exit 2,
+    one message naming the file and `words`, no traceback."""
+    from elasticoop._cli import main
+
+    scenario_file = tmp_path / "pair.toml"
+    scenario_file.write_text(TWO_BODIES)
+    out = tmp_path / "out"
+    code = main(["identify", str(scenario_file), str(data), "-o", str(out), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert f"{data}: " in err, err
+    for word in words:
+        assert word in err, err
+    assert "Traceback" not in err and "internal error" not in err
+    assert not out.exists()
+    return err
+
+
+def test_a_5_mb_garbage_header_cell_is_named_not_an_internal_error(tmp_path, capsys):
+    # Was: exit 1, "internal error (Error: field larger than field limit
+    # (131072)). This is a bug in elasticoop", with a traceback.
+    t, y = known_motion()
+    path = write_csv(tmp_path / "m.csv", t, y)
+    lines = path.read_text().splitlines()
+    cells = lines[1].split(",")
+    cells[3] = "x" * 5_000_000
+    lines[1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    err = identify_refuses(tmp_path, capsys, path, "line 2: not a line of CSV")
+    assert "(5000" in err and len(err) < 2000  # the length, not the cell
+    # a long cell within the reader's limit: named by its start and length
+    cells[3] = "x" * 100_000
+    lines[1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    err = identify_refuses(
+        tmp_path, capsys, path, "line 2 (header): cell 4 is not a column name"
+    )
+    assert "(100000 characters)" in err and len(err) < 2000
+
+
+def test_a_byte_order_mark_is_read_not_shown_as_an_invisible_character(
+    scenario, tmp_path, capsys
+):
+    # Was: "column '\ufefft', line 1 (header): not a column name of measured
+    # data" (the mark invisible in the message).
+    t, y = known_motion()
+    path = write_csv(tmp_path / "m.csv", t, y, comment=False)
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    np.testing.assert_allclose(np.asarray(load_experiment(path, scenario).y), y)
+    # one inside the file (two files joined) is named
+    lines = path.read_text(encoding="utf-8-sig").splitlines()
+    lines[0] = lines[0].replace("obj.y", "\ufeffobj.y")
+    path.write_text("\n".join(lines) + "\n")
+    identify_refuses(
+        tmp_path,
+        capsys,
+        path,
+        "cell 3, '\\ufeffobj.y', holds invisible characters (U+FEFF",
+        "byte-order mark",
+    )
+
+
+def test_a_data_cell_of_1e300_is_named_with_file_column_and_line(tmp_path, capsys):
+    # Was: the fit started and stopped with "the simulation with sensitivities
+    # fails at the start ..." (exit 2), naming no file, column or value.
+    t, y = known_motion()
+    path = write_csv(tmp_path / "m.csv", t, y)
+    lines = path.read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[2] = "1e300"
+    lines[3] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    identify_refuses(
+        tmp_path,
+        capsys,
+        path,
+        "column 'obj.y', line 4: 1e+300 lies beyond ±1e+15",
+    )
+    nc = netcdf(tmp_path / "run.nc", t, np.where(y > 0.5, 1e300, y))
+    identify_refuses(tmp_path, capsys, nc, "column 'y', sample", "1e+300 lies beyond")
+
+
+def test_netcdf_times_that_are_dates_or_milliseconds_are_refused(tmp_path, capsys):
+    # Was: times in "seconds since 2000-01-01" were decoded into dates and read as
+    # nanoseconds since 1970 (exit 3 from the fit); "ms" was read as seconds.
+    import xarray as xr
+
+    t, y = known_motion()
+    path = netcdf(tmp_path / "run.nc", t, y)
+    for units, words in (
+        ("seconds since 2000-01-01", "are not seconds (a date: give the time"),
+        ("ms", "units 'ms' are not seconds"),
+    ):
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            changed = ds.load()
+        changed["time"].attrs["units"] = units
+        other = tmp_path / "dated.nc"
+        changed.to_netcdf(other, engine="h5netcdf")
+        identify_refuses(tmp_path, capsys, other, "column 'time': units", words)
+
+
+def test_noise_levels_out_of_range_are_named(scenario, tmp_path):
+    # Was: accepted: a noise level of 1e-300 weighs its residuals by 1e300, whose
+    # squares overflow float64.
+    t, y = known_motion()
+    sigma = [1e-3] * 12
+    sigma[4] = 1e-300
+    path = write_csv(tmp_path / "m.csv", t, y, sigma=sigma)
+    with pytest.raises(DataFileError, match="column 'obj.theta', line 3") as info:
+        load_experiment(path, scenario)
+    assert "(sigma): the noise level '1e-300' lies below 1e-15" in str(info.value)
+
+
+def test_a_file_of_too_many_cells_is_refused_before_it_is_split(
+    scenario, tmp_path, monkeypatch
+):
+    # (a file near the data-file limit of 1 GiB held as Python strings took many
+    # times its size in memory before the samples' own limit was checked)
+    from elasticoop._config import measured_csv
+
+    t, y = known_motion()
+    path = write_csv(tmp_path / "m.csv", t, y)
+    monkeypatch.setattr(measured_csv, "MAX_CSV_CELLS", 40)
+    monkeypatch.setattr(measured_csv, "_rows", None)  # never reached
+    with pytest.raises(DataFileError, match="about 6[0-9] cells, over the limit of 40"):
+        load_experiment(path, scenario)

@@ -13,6 +13,7 @@ import traceback
 import numpy as np
 
 from .._config import ScenarioError, load_scenario
+from .._config.limits import format_bytes, run_files_bytes
 from .._io.folder import OutputFolder, OutputFolderError
 from .._simulate import SimulationError, simulate
 from .._status import status_message
@@ -190,8 +191,10 @@ def check_options(scenario, args) -> None:
 def simulate_scenario(scenario, args):
     """Check the options against the scenario (`check_options`), then run it;
     returns `(trajectory, wall time [s], error or None)`. A `SimulationError` is
-    returned with its partial trajectory, not raised."""
+    returned with its partial trajectory, not raised. With an output folder,
+    its free space is checked first (`check_free_space`)."""
     check_options(scenario, args)
+    check_free_space(scenario, args)
     start = time.perf_counter()
     try:
         traj = scenario.simulate(**progress_overrides(args))
@@ -238,15 +241,52 @@ def add_output_options(parser, help: str, required: bool = False) -> None:
 
 
 def output_folder(args, scenario_file: str | None = None) -> OutputFolder:
-    """The checked output folder of `-o`, before any work: raises
+    """The checked output folder of `-o`, before any work. What an interrupted
+    earlier write left beside it is put right first (`OutputFolder.recover`: the
+    folder restored, the leftovers removed), with a note on stderr. Raises
     `OutputFolderError` when it is a file, not empty (without `--overwrite`), is
     or holds the scenario file or the current folder, or cannot be created."""
     keep = {os.getcwd(): "the current folder"}
     if scenario_file:
         keep[scenario_file] = "the scenario file"
     folder = OutputFolder.of(args.output, overwrite=args.overwrite, keep=keep)
+    for note in folder.recover():
+        print(f"elasticoop {args.command}: note: {note}", file=sys.stderr)
     folder.check()
     return folder
+
+
+def check_free_space(scenario, args) -> None:
+    """Raise `OutputFolderError` before simulating when the file system of the
+    output folder (`-o`, if given) has less free space than the files of the run
+    may take at most (`limits.run_files_bytes`; the previous results are removed
+    only once the new ones are in place, so they do not count as free)."""
+    from .._io.files import free_bytes
+
+    if not getattr(args, "output", None):
+        return
+    folder = OutputFolder.of(args.output)
+
+    plots = not getattr(args, "no_plots", False)
+    sizes = run_files_bytes(
+        int(np.asarray(scenario.ts).size),
+        scenario.model.n_bodies,
+        len(scenario.connection_names),
+        scenario.prescribed is not None,
+        plots,
+    )
+    needed = sum(sizes.values())
+    free = free_bytes(folder.path.parent)
+    if needed > free:
+        parts = ", ".join(
+            f"{name} {format_bytes(size)}" for name, size in sizes.items()
+        )
+        raise OutputFolderError(
+            f"not enough free space for the results in {folder.path}: the run "
+            f"writes up to {format_bytes(needed)} ({parts}) and "
+            f"{format_bytes(free)} are free; free some space, choose a folder on "
+            "another disk, or ask for fewer [time] samples"
+        )
 
 
 def write_results(scenario, traj, wall_time, folder: OutputFolder, args) -> list:

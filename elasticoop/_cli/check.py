@@ -5,7 +5,12 @@ import sys
 import numpy as np
 
 from .._config import ScenarioError
-from .._config.limits import MAX_OUTPUT_BYTES, format_bytes, output_bytes
+from .._config.limits import (
+    MAX_OUTPUT_BYTES,
+    format_bytes,
+    output_bytes,
+    run_files_bytes,
+)
 from .._forces import SampledForce
 from ._common import EXIT_OK, EXIT_USAGE, common_options, load, say
 
@@ -49,12 +54,13 @@ def scenario_lines(scenario) -> list[str]:
             f"{float(samples[-1]):g} s; {scenario.forces.jump_ts.size} of them "
             f"handed to the solver as jump times (the kinks)"
         )
-    results = output_bytes(
-        ts.size,
+    counts = (
         model.n_bodies,
         len(scenario.connection_names),
         scenario.prescribed is not None,
     )
+    results = output_bytes(ts.size, *counts)
+    files = sum(run_files_bytes(ts.size, *counts, plots=True).values())
     lines = [
         f"  model: {kind} ({model.convention}), {model.n_bodies} bodies "
         f"({', '.join(scenario.names)}){links}, gravity {float(model.gravity)} m/s^2",
@@ -62,7 +68,8 @@ def scenario_lines(scenario) -> list[str]:
         f"{scenario.solver} (rtol {scenario.rtol:g}, atol {scenario.atol:g}, "
         f"max_steps {scenario.max_steps})",
         f"  results: about {format_bytes(results)} "
-        f"(limit {format_bytes(MAX_OUTPUT_BYTES)})",
+        f"(limit {format_bytes(MAX_OUTPUT_BYTES)}); the files of a run take up "
+        f"to {format_bytes(files)} on disk",
         f"  forces: {forces}",
     ]
     if scenario.prescribed is not None:

@@ -87,7 +87,8 @@ def load_scenario(path) -> Scenario:
             f"matrices and time series in data files)"
         )
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        # "utf-8-sig": a byte-order mark (as some editors write) is dropped
+        raw = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise refuse(f"not valid TOML: {err}") from None
     except RecursionError:
@@ -496,15 +497,19 @@ class _Builder:
                 feedforward[k - 1] = values
         # "hold": set once the model and the initial state are known
         self.hold_feedforward = pose.feedforward == "hold"
-        return PoseTracking(
-            y_ref=jnp.asarray(self.y_init[1:]),
-            feedforward=jnp.asarray(feedforward),
-            kp=jnp.asarray(pose.kp),
-            kd=jnp.asarray(pose.kd),
-            height=jnp.asarray(pose.lift_height, dtype=jnp.float64),
-            duration=jnp.asarray(pose.lift_time, dtype=jnp.float64),
-            start=jnp.asarray(self.ts[0] if self.ts is not None else 0.0),
-        )
+        try:
+            return PoseTracking(
+                y_ref=jnp.asarray(self.y_init[1:]),
+                feedforward=jnp.asarray(feedforward),
+                kp=jnp.asarray(pose.kp),
+                kd=jnp.asarray(pose.kd),
+                height=jnp.asarray(pose.lift_height, dtype=jnp.float64),
+                duration=jnp.asarray(pose.lift_time, dtype=jnp.float64),
+                start=jnp.asarray(self.ts[0] if self.ts is not None else 0.0),
+            )
+        except ValueError as err:  # e.g. a weight beyond float64's range
+            self.add("[forces.pose_tracking]", "", str(err))
+            return None
 
     def prescribed(self):
         table = self.s.get("prescribed")
@@ -676,6 +681,15 @@ class _Builder:
             y_init, prescribed, forces = self.equilibrium(model, forces, prescribed)
         if self.hold_feedforward:
             hold = holding_forces(model, jnp.asarray(y_init))
+            if not np.all(np.isfinite(np.asarray(hold))):
+                self.add(
+                    "[forces.pose_tracking]",
+                    "feedforward",
+                    '"hold": the forces that hold the contact bodies at rest in the '
+                    "initial state are not finite (check the masses, stiffnesses "
+                    "and poses)",
+                )
+                self.problems.raise_if_any()
             forces = eqx.tree_at(lambda f: f.feedforward, forces, hold)
         solver = self.s.get("solver") or SolverTable()
         source = pathlib.Path(self.source)

@@ -10,7 +10,12 @@ import warnings
 
 import numpy as np
 
-from .limits import MAX_DATA_FILE_BYTES, format_bytes
+from .limits import (
+    MAX_DATA_FILE_BYTES,
+    MAX_MAGNITUDE,
+    format_bytes,
+    magnitude_problem,
+)
 
 TIME_COLUMNS = ("t", "time")
 
@@ -94,7 +99,9 @@ def _read_csv_matrix(path: pathlib.Path, name: str) -> np.ndarray:
         with warnings.catch_warnings():
             # an empty file is reported below, not warned about
             warnings.simplefilter("ignore", UserWarning)
-            arr = np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+            arr = np.loadtxt(
+                path, delimiter=",", ndmin=2, comments="#", encoding="utf-8-sig"
+            )
     except UnicodeDecodeError:
         raise ValueError(f"file '{name}' is not a text file (not UTF-8)") from None
     except ValueError as err:
@@ -122,6 +129,12 @@ def read_matrix(base_dir: pathlib.Path, name: str) -> np.ndarray:
     arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"file '{name}' holds NaN or infinite entries")
+    huge = np.argwhere(np.abs(arr) > MAX_MAGNITUDE)
+    if huge.size:
+        r, c = (int(i) for i in huge[0])
+        raise ValueError(
+            f"file '{name}', entry [{r}][{c}]: {magnitude_problem(float(arr[r, c]))}"
+        )
     return arr
 
 
@@ -181,6 +194,13 @@ def read_series(base_dir: pathlib.Path, name: str):
         row = int(np.argwhere(~np.isfinite(values))[0, 0])
         raise ValueError(
             f"file '{name}' has an empty, NaN or infinite entry in data row {row + 1}"
+        )
+    huge = np.argwhere(np.abs(values) > MAX_MAGNITUDE)
+    if huge.size:
+        row, column = (int(i) for i in huge[0])
+        raise ValueError(
+            f"file '{name}', column '{columns[column]}', data row {row + 1}: "
+            f"{magnitude_problem(float(values[row, column]))}"
         )
     times = values[:, 0]
     if not np.all(np.diff(times) > 0):

@@ -65,3 +65,58 @@ def format_bytes(size: int | float) -> str:
         if size >= scale:
             return f"{size / scale:.3g} {unit}"
     return f"{int(size)} bytes"
+
+
+# What `elasticoop run` writes, at most, besides the numbers of its results: a
+# float64 in trajectory.csv takes up to 24 characters ("-1.2345678901234567e-05")
+# and its comma; trajectory.nc holds 8 bytes per number plus its layout and the
+# model's parameters; the summary and the four PNG plots.
+CSV_BYTES_PER_NUMBER = 25
+NETCDF_LAYOUT_BYTES = 64 * 2**10
+SUMMARY_BYTES = 64 * 2**10
+PLOTS_BYTES = 2 * 2**20
+
+
+def run_file_numbers_per_sample(
+    n_bodies: int, n_connections: int, prescribed: bool
+) -> int:
+    """Numbers per output sample in `trajectory.nc` and `trajectory.csv`: those of
+    `output_numbers_per_sample` and the applied forces (`6 * bodies`)."""
+    return output_numbers_per_sample(n_bodies, n_connections, prescribed) + 6 * n_bodies
+
+
+def run_files_bytes(
+    samples: int, n_bodies: int, n_connections: int, prescribed: bool, plots: bool
+) -> dict[str, int]:
+    """The most bytes each file of a run takes on disk: `trajectory.nc`,
+    `trajectory.csv`, `summary.json` and (with `plots`) the plots; the disk a run
+    needs is their sum."""
+    numbers = samples * run_file_numbers_per_sample(n_bodies, n_connections, prescribed)
+    sizes = {
+        "trajectory.nc": numbers * FLOAT_BYTES + NETCDF_LAYOUT_BYTES,
+        "trajectory.csv": numbers * CSV_BYTES_PER_NUMBER,
+        "summary.json": SUMMARY_BYTES,
+    }
+    if plots:
+        sizes["plots"] = PLOTS_BYTES
+    return sizes
+
+
+# The largest magnitude of a number in a scenario file or a data file, in SI units
+# (kg, m, s, N, rad): beyond it the products the simulation forms (weights,
+# energies, squared residuals) leave float64's range, and no physical quantity of
+# a manipulation task comes near it.
+MAX_MAGNITUDE = 1e15
+
+
+def magnitude_problem(value: float, factor: float = 1.0) -> str | None:
+    """A message when `value` (times `factor`, its unit's factor to SI) lies beyond
+    `MAX_MAGNITUDE`; `None` when it does not, or is not finite (checked apart)."""
+    import math
+
+    if not math.isfinite(value) or abs(value * factor) <= MAX_MAGNITUDE:
+        return None
+    return (
+        f"{value!r} lies beyond ±{MAX_MAGNITUDE:g}, the largest magnitude accepted "
+        "(in SI units)"
+    )

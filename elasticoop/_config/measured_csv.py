@@ -18,6 +18,7 @@ import numpy as np
 
 from .._naming import coordinate_names
 from .data_files import TIME_COLUMNS
+from .limits import MAX_MAGNITUDE, format_bytes, magnitude_problem
 from .measured_samples import MeasuredData, check_samples_size
 from .problems import DataFileError, DataProblem
 
@@ -41,6 +42,7 @@ UNITS = {
 }
 _HEADER = re.compile(r"^(?P<name>[^\[\]]*?)\s*(?:\[(?P<unit>[^\[\]]*)\])?$")
 MAX_CELL_PROBLEMS = 5  # per column; the rest are counted
+MAX_HEADER_CHARACTERS = 200  # of a header cell (a body name, a coordinate, a unit)
 
 
 class _Column:
@@ -61,17 +63,18 @@ def read_measured_csv(path: pathlib.Path, source: str, scenario) -> MeasuredData
         problems.append(DataProblem(column, row, message))
 
     try:
-        text = path.read_text(encoding="utf-8")
+        # "utf-8-sig": a byte-order mark (as some spreadsheets write) is dropped
+        text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise DataFileError(
             source, [DataProblem("", "", "not a text file (not UTF-8)")]
         ) from None
-    rows = [
-        (number, cells)
-        for number, line in enumerate(text.splitlines(), start=1)
-        if line.strip() and not line.lstrip().startswith("#")
-        for cells in csv.reader([line], skipinitialspace=True)
-    ]
+    too_many = check_cell_count(text)
+    if too_many:
+        raise DataFileError(source, [DataProblem("", "", too_many)])
+    rows = _rows(text, add)
+    if problems:  # lines that are not CSV
+        raise DataFileError(source, problems)
     if not rows:
         raise DataFileError(source, [DataProblem("", "", "no header row")])
     header_line, header = rows[0]
@@ -113,6 +116,52 @@ def read_measured_csv(path: pathlib.Path, source: str, scenario) -> MeasuredData
     return _assemble(columns, values, times, sigma, n_bodies)
 
 
+# The cells of a CSV file read at most: each is held as text while the file is
+# checked (about 70 bytes of memory each), so this keeps reading a file near
+# 2 GiB of memory; about 2.8 million samples of 12 coordinates.
+MAX_CSV_CELLS = 2**25
+CELL_MEMORY_BYTES = 70
+
+
+def check_cell_count(text: str) -> str | None:
+    """A message, before the file is split into cells, when it holds more than
+    `MAX_CSV_CELLS` (counted as its commas plus its lines: an upper bound)."""
+    cells = text.count(",") + text.count("\n") + 1
+    if cells <= MAX_CSV_CELLS:
+        return None
+    return (
+        f"the file holds about {cells} cells, over the limit of {MAX_CSV_CELLS} "
+        f"(reading them takes about {format_bytes(cells * CELL_MEMORY_BYTES)} of "
+        "memory); resample the file or split it into several experiments"
+    )
+
+
+def _rows(text: str, add) -> list[tuple[int, list[str]]]:
+    """`(line number, cells)` of the lines that are neither blank nor comments; a
+    line the CSV reader refuses (a cell beyond its field size limit, a stray
+    quote) is a problem."""
+    rows = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        try:
+            rows.extend((number, cells) for cells in csv.reader([line], **_DIALECT))
+        except csv.Error as err:
+            add("", f"line {number}", f"not a line of CSV ({err}): {shown(line)}")
+    return rows
+
+
+_DIALECT = {"skipinitialspace": True}
+SHOWN_CHARACTERS = 40  # of a cell quoted in a message
+
+
+def shown(text: str) -> str:
+    """`text` quoted for a message: its start and its length when it is long."""
+    if len(text) <= SHOWN_CHARACTERS:
+        return repr(text)
+    return f"{text[:SHOWN_CHARACTERS]!r}... ({len(text)} characters)"
+
+
 def _parse_header(header, line, scenario, add) -> list[_Column | None]:
     """One `_Column` per header cell (`None` where the cell has a problem)."""
     names = list(scenario.names)
@@ -124,11 +173,25 @@ def _parse_header(header, line, scenario, add) -> list[_Column | None]:
         text = cell.strip()
         match = _HEADER.match(text)
         if not text or match is None:
-            add("", where, f"cell {position + 1} is not a column name: {cell!r}")
+            add("", where, f"cell {position + 1} is not a column name: {shown(cell)}")
             parsed.append(None)
             continue
         label, unit = match["name"].strip(), match["unit"]
         unit = None if unit is None else unit.strip()
+        invisible = sorted({f"U+{ord(ch):04X}" for ch in text if not ch.isprintable()})
+        if invisible:
+            add(
+                "",
+                where,
+                f"cell {position + 1}, {shown(cell)}, holds invisible characters "
+                f"({', '.join(invisible)}; U+FEFF is a byte-order mark): remove them",
+            )
+            parsed.append(None)
+            continue
+        if len(text) > MAX_HEADER_CHARACTERS:
+            add("", where, f"cell {position + 1} is not a column name: {shown(cell)}")
+            parsed.append(None)
+            continue
         if label in seen:
             add(label, where, f"repeated column (also cell {seen[label] + 1})")
             parsed.append(None)
@@ -223,13 +286,19 @@ def _numbers(columns, samples, add) -> np.ndarray:
             try:
                 value = float(text)
             except ValueError:
-                bad.setdefault(c, []).append(f"line {number}: not a number: {cell!r}")
+                bad.setdefault(c, []).append(
+                    f"line {number}: not a number: {shown(cell)}"
+                )
                 continue
             if math.isinf(value):
                 bad.setdefault(c, []).append(
-                    f"line {number}: infinite value {cell!r} (leave a missing "
+                    f"line {number}: infinite value {shown(cell)} (leave a missing "
                     f"sample empty)"
                 )
+                continue
+            too_large = magnitude_problem(value, columns[c].factor)
+            if too_large:
+                bad.setdefault(c, []).append(f"line {number}: {too_large}")
                 continue
             values[r, c] = value * columns[c].factor
     for c, messages in bad.items():
@@ -296,7 +365,7 @@ def _noise(columns, noise, add) -> dict[int, float]:
             add(
                 column.label,
                 f"line {number} ({NOISE_ROW})",
-                f"the noise level must be a positive number, got {cells[c]!r}"
+                f"the noise level must be a positive number, got {shown(cells[c])}"
                 + (" (give one for every measured column)" if not text else ""),
             )
             continue
@@ -304,7 +373,17 @@ def _noise(columns, noise, add) -> dict[int, float]:
             add(
                 column.label,
                 f"line {number} ({NOISE_ROW})",
-                f"the noise level must be a positive number, got {cells[c]!r}",
+                f"the noise level must be a positive number, got {shown(cells[c])}",
+            )
+            continue
+        too_large = magnitude_problem(value)
+        if too_large or value < 1 / MAX_MAGNITUDE:
+            add(
+                column.label,
+                f"line {number} ({NOISE_ROW})",
+                too_large
+                or f"the noise level {shown(cells[c].strip())} lies below "
+                f"{1 / MAX_MAGNITUDE:g} in SI units, the smallest accepted",
             )
             continue
         out[c] = value

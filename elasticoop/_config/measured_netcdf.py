@@ -15,6 +15,7 @@ import pathlib
 import numpy as np
 
 from .._naming import TRANSLATION_NAMES, coordinate_names
+from .limits import MAX_MAGNITUDE, magnitude_problem
 from .measured_samples import MeasuredData, check_samples_size
 from .problems import DataFileError, DataProblem
 
@@ -38,7 +39,11 @@ def read_measured_netcdf(path: pathlib.Path, source: str, scenario) -> MeasuredD
         problems.append(DataProblem(column, row, message))
 
     try:
-        ds = xr.open_dataset(path, engine="h5netcdf")
+        # times as written: a date ("seconds since ...") or a duration unit is
+        # checked below, not converted by xarray into datetimes or timedeltas
+        ds = xr.open_dataset(
+            path, engine="h5netcdf", decode_times=False, decode_timedelta=False
+        )
     except Exception as err:  # h5py/xarray raise many kinds for a damaged file
         raise DataFileError(
             source,
@@ -84,7 +89,9 @@ def read_measured_netcdf(path: pathlib.Path, source: str, scenario) -> MeasuredD
                 f"'{scenario.model.convention}' ({coords})",
             )
         factors = _angle_factors(ds, file_coords, add)
-        ts = np.asarray(ds["time"].values, dtype=np.float64)
+        ts = _time_values(ds, add)
+        if ts is None:
+            raise DataFileError(source, problems)
         too_large = check_samples_size(len(ts), len(names))
         if too_large:
             add("time", "", too_large)
@@ -146,10 +153,47 @@ def _check_times(ts, add) -> None:
         add("time", _sample(ts, k + 1), f"times must increase (after t = {ts[k]:g} s)")
 
 
+# The units accepted for the time coordinate (or none: seconds).
+TIME_UNITS = ("s", "second", "seconds", "sec")
+
+
+def _time_values(ds, add) -> np.ndarray | None:
+    """The `time` coordinate in seconds, or `None` (with the problem added) when
+    it is missing, not numbers, or in another unit (a date such as `seconds since
+    2000-01-01`, milliseconds, ...)."""
+    if "time" not in ds.variables:
+        add("time", "", "missing coordinate: the sample times [s]")
+        return None
+    var = ds["time"]
+    if var.dtype.kind not in "iuf":
+        add(
+            "time", "", f"the times must be numbers [s], got values of type {var.dtype}"
+        )
+        return None
+    unit = var.attrs.get("units")
+    if unit is not None and str(unit).strip() not in TIME_UNITS:
+        hint = (
+            " (a date: give the time in seconds from the start of the motion, "
+            "units 's')"
+            if " since " in str(unit)
+            else " (give the times in seconds, units 's')"
+        )
+        add("time", "", f"units {str(unit)!r} are not seconds{hint}")
+        return None
+    ts = np.asarray(var.values, dtype=np.float64)
+    for k in np.flatnonzero(np.isfinite(ts) & (np.abs(ts) > MAX_MAGNITUDE))[:5]:
+        add("time", f"sample {k}", str(magnitude_problem(float(ts[k]))))
+    return ts
+
+
 def _check_values(name, values, ts, add) -> None:
     infinite = np.argwhere(np.isinf(values))
     for k, b, c in infinite[:5]:
         add(name, _sample(ts, k), f"infinite value at body {b}, coordinate {c}")
+    huge = np.argwhere(np.isfinite(values) & (np.abs(values) > MAX_MAGNITUDE))
+    for k, b, c in huge[:5]:
+        problem = magnitude_problem(float(values[k, b, c]))
+        add(name, _sample(ts, k), f"body {b}, coordinate {c}: {problem}")
 
 
 def _sigma(ds, name, order, coords, factors, add) -> np.ndarray | None:
@@ -163,5 +207,16 @@ def _sigma(ds, name, order, coords, factors, add) -> np.ndarray | None:
     values = values * np.array([factors[c] for c in coords])
     if not np.all(np.isfinite(values) & (values > 0)):
         add(name, "", "noise levels must be positive finite numbers")
+        return None
+    outside = (values < 1 / MAX_MAGNITUDE) | (values > MAX_MAGNITUDE)
+    if np.any(outside):
+        b, c = (int(i) for i in np.argwhere(outside)[0])
+        add(
+            name,
+            "",
+            f"noise levels must lie within {1 / MAX_MAGNITUDE:g} and "
+            f"{MAX_MAGNITUDE:g} (SI units), got {values[b, c]!r} at body {b}, "
+            f"coordinate {c}",
+        )
         return None
     return values

@@ -10,6 +10,7 @@ import math
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -18,10 +19,21 @@ from pydantic import (
 )
 
 from .._options import MAX_STEPS_LIMIT, SOLVERS as SOLVER_CLASSES
+from .limits import magnitude_problem
 
-Number = Annotated[float, Field(allow_inf_nan=False)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+def _bounded(value: float) -> float:
+    """A number of at most `limits.MAX_MAGNITUDE` in magnitude."""
+    problem = magnitude_problem(value)
+    if problem:
+        raise ValueError(problem)
+    return value
+
+
+Bounded = AfterValidator(_bounded)
+Number = Annotated[float, Field(allow_inf_nan=False), Bounded]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False), Bounded]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False), Bounded]
 Fraction = Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)]  # in (0, 1)
 Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
 Vector6 = Annotated[list[Number], Field(min_length=6, max_length=6)]
@@ -86,10 +98,18 @@ def _matrix(value):
     for r, row in enumerate(value):
         for c, entry in enumerate(row):
             ok = isinstance(entry, int | float) and not isinstance(entry, bool)
+            if ok and isinstance(entry, int) and abs(entry) >= 2**1024:
+                raise ValueError(
+                    f"entry [{r}][{c}] must be a finite number, got an integer of "
+                    f"{len(str(abs(entry)))} digits (beyond float64's range)"
+                )
             if not ok or not math.isfinite(entry):
                 raise ValueError(
                     f"entry [{r}][{c}] must be a finite number, got {entry!r}"
                 )
+            problem = magnitude_problem(float(entry))
+            if problem:
+                raise ValueError(f"entry [{r}][{c}]: {problem}")
     return value
 
 
@@ -115,11 +135,34 @@ def _motion(value):
     return value
 
 
-class ScenarioInfo(Table):
-    """Top-level keys: `name` (default: the file name) and `description`."""
+def _text(allowed: str):
+    """A validator of text without control characters other than `allowed` (a NUL
+    cannot be stored in the netCDF file's attributes, and the others garble
+    the reports)."""
 
-    name: str | None = Field(default=None, min_length=1)
-    description: str = ""
+    def check(value: str) -> str:
+        bad = sorted({f"U+{ord(ch):04X}" for ch in value if _control(ch, allowed)})
+        if bad:
+            raise ValueError(
+                f"holds control characters ({', '.join(bad)}), got {value[:40]!r}"
+                + ("..." if len(value) > 40 else "")
+            )
+        return value
+
+    return AfterValidator(check)
+
+
+def _control(ch: str, allowed: str) -> bool:
+    return ch not in allowed and (ord(ch) < 32 or 0x7F <= ord(ch) < 0xA0)
+
+
+class ScenarioInfo(Table):
+    """Top-level keys: `name` (default: the file name) and `description` (text
+    without control characters; the description may hold line breaks and
+    tabs)."""
+
+    name: Annotated[str, _text("")] | None = Field(default=None, min_length=1)
+    description: Annotated[str, _text("\n\t\r")] = ""
 
 
 class ModelTable(Table):
