@@ -20,7 +20,7 @@ def use_float64() -> None:
     if JAX is imported already, else through `JAX_ENABLE_X64`, which JAX reads when
     it is imported."""
     jax = sys.modules.get("jax")
-    if jax is not None and hasattr(jax, "config"):
+    if getattr(jax, "config", None) is not None:
         jax.config.update("jax_enable_x64", True)
     else:
         os.environ["JAX_ENABLE_X64"] = "1"
