@@ -19,9 +19,9 @@ def use_float64() -> None:
     """Turn on JAX's 64-bit mode (`jax_enable_x64`) without importing JAX: at once
     if JAX is imported already, else through `JAX_ENABLE_X64`, which JAX reads when
     it is imported."""
-    jax = sys.modules.get("jax")
-    if getattr(jax, "config", None) is not None:
-        jax.config.update("jax_enable_x64", True)
+    config = getattr(sys.modules.get("jax"), "config", None)
+    if config is not None:
+        config.update("jax_enable_x64", True)
     else:
         os.environ["JAX_ENABLE_X64"] = "1"
 

@@ -38,7 +38,8 @@ def _elements(
     dims = [str(d) for d in x.dims[1:] if d not in skip]
     shape = [x.sizes[d] for d in dims]
     ok = np.ones(x.shape[0], bool) if ok is None else np.asarray(ok)
-    moving, still = [], []
+    moving: list[tuple[dict, str]] = []
+    still: list[tuple[dict, str]] = []
     for index in np.ndindex(*shape):
         labels = []
         for dim, k in zip(dims, index):
