@@ -1,6 +1,12 @@
-"""First-call latency of the default scenario in fresh processes.
+"""Latency in fresh processes: the command line's answers, and the first call of
+the default scenario.
 
     python benchmarks/latency.py [--json out.json]
+
+The command line: wall time of `python -m elasticoop --version`, `--help` and
+`check` of the built-in scenario file (its static equilibrium is compiled: warm,
+with the compilation cache a first `check` filled), each the quickest of
+`repeats` fresh processes.
 
 Wall time of `python -c` importing elasticoop and simulating
 `default_scenario()` (3 bodies, 2 grasps, 3 s, Tsit5 at rtol 1e-8), first and second
@@ -15,6 +21,8 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
+from pathlib import Path
 
 _CHILD = r"""
 import json, sys, time
@@ -54,9 +62,52 @@ def _fresh_process(cache: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+SCENARIO = Path(__file__).resolve().parents[1] / "elasticoop/scenarios/beam_lift.toml"
+COMMANDS = {
+    "--version": ["--version"],
+    "--help": ["--help"],
+    "check (warm)": ["check", str(SCENARIO)],
+}
+TARGETS_S = {"--version": 0.5, "--help": 1.0, "check (warm)": 2.0}
+
+
+def _command_s(arguments: list[str], env: dict) -> float:
+    start = time.perf_counter()
+    subprocess.run(
+        [sys.executable, "-m", "elasticoop", *arguments],
+        check=True,
+        capture_output=True,
+        env=env,
+    )
+    return time.perf_counter() - start
+
+
+def command_line(repeats: int = 5, commands=tuple(COMMANDS)) -> dict:
+    """Wall time of each command in fresh processes (the quickest and slowest of
+    `repeats`), with a compilation cache of its own that a first run fills."""
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        env = {**os.environ, "ELASTICOOP_CACHE_DIR": folder}
+        for name in commands:
+            _command_s(COMMANDS[name], env)  # fills the cache; loads the files
+            times = [_command_s(COMMANDS[name], env) for _ in range(repeats)]
+            rows.append(
+                {
+                    "command": "python -m elasticoop " + " ".join(COMMANDS[name]),
+                    "quickest_s": min(times),
+                    "slowest_s": max(times),
+                    "target_s": TARGETS_S[name],
+                }
+            )
+    return {"problem": f"fresh processes, the quickest of {repeats}", "rows": rows}
+
+
 def run(quick: bool = False, rounds: int = 2) -> dict:
-    if quick:  # fresh processes take tens of seconds: not at smoke size
-        return {"problem": "skipped at smoke size (fresh processes)"}
+    if quick:  # fresh processes compiling take tens of seconds: not at smoke size
+        return {
+            "problem": "command line only at smoke size (fresh processes)",
+            "command_line": command_line(1, ("--version", "--help")),
+        }
     runs: dict[str, list[dict]] = {"off": [], "cold (empty)": [], "warm": []}
     for _ in range(rounds):  # in turn, so that a slow spell hits every row alike
         with tempfile.TemporaryDirectory() as folder:
@@ -72,6 +123,7 @@ def run(quick: bool = False, rounds: int = 2) -> dict:
         for cache, found in runs.items()
     ]
     return {
+        "command_line": command_line(),
         "problem": "default_scenario(): 3 bodies, 2 grasps, 3 s, Tsit5 rtol 1e-8; "
         f"a fresh python process per run, the quickest of {rounds} per row",
         "rows": rows,
@@ -80,6 +132,9 @@ def run(quick: bool = False, rounds: int = 2) -> dict:
 
 
 if __name__ == "__main__":
-    from _cli import main
+    if sys.argv[1:] == ["--command-line"]:
+        print(json.dumps(command_line(), indent=2))
+    else:
+        from _cli import main
 
-    main(run, __doc__)
+        main(run, __doc__)

@@ -7,74 +7,17 @@ as `rtol=1e-8` are meaningless in float32.
 
 import typing
 
-import jax
+from ._lazy import lazy_attributes as _lazy_attributes, use_float64 as _use_float64
+from ._version import __version__ as __version__
 
-jax.config.update("jax_enable_x64", True)
+_use_float64()
 
-from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy  # noqa: E402
-from ._cache import enable_compilation_cache as enable_compilation_cache  # noqa: E402
-from ._forces import (  # noqa: E402
-    AbstractForce as AbstractForce,
-    ConstantForce as ConstantForce,
-    FeedbackForce as FeedbackForce,
-    PoseTracking as PoseTracking,
-    SampledForce as SampledForce,
-    generalized_wrench as generalized_wrench,
-)
-from ._integrate import StepwiseAdjoint as StepwiseAdjoint  # noqa: E402
-from ._lagrange import (  # noqa: E402
-    accelerations as accelerations,
-    constrained_accelerations as constrained_accelerations,
-    damping_forces as damping_forces,
-    elastic_forces as elastic_forces,
-    inverse_dynamics as inverse_dynamics,
-    mass_matrix as mass_matrix,
-    velocity_terms as velocity_terms,
-)
-from ._lazy import lazy_attributes as _lazy_attributes  # noqa: E402
-from ._models import (  # noqa: E402
-    AbstractElasticModel as AbstractElasticModel,
-    Connection as Connection,
-    ImmobileModel as ImmobileModel,
-    MobileModel as MobileModel,
-    connection_dissipation as connection_dissipation,
-    connection_potential as connection_potential,
-    deflection as deflection,
-    linearize_mobile as linearize_mobile,
-)
-from ._motion import (  # noqa: E402
-    AbstractMotion as AbstractMotion,
-    PrescribedMotion as PrescribedMotion,
-    SplineMotion as SplineMotion,
-)
-from ._options import (  # noqa: E402
-    GIMBAL_TOL as GIMBAL_TOL,
-    LINK_TOL as LINK_TOL,
-    SimulationOptions as SimulationOptions,
-)
-from ._rotations import (  # noqa: E402
-    RPY as RPY,
-    ZXZ as ZXZ,
-    AbstractRotation as AbstractRotation,
-    get_rotation as get_rotation,
-)
-from ._scenario import (  # noqa: E402
-    PrescribedSpec as PrescribedSpec,
-    Scenario as Scenario,
-)
-from ._simulate import (  # noqa: E402
-    SimulationError as SimulationError,
-    simulate as simulate,
-)
-from ._status import Status as Status  # noqa: E402
-from ._trajectory import Trajectory as Trajectory  # noqa: E402
-from ._version import __version__ as __version__  # noqa: E402
-
-# The parts that pull in heavy dependencies (scipy, pandas, xarray, matplotlib,
-# pydantic, optax) are imported on first use, so that `import elasticoop` and a first
-# `simulate` do not pay for them. The imports below are the one list of these names:
-# type checkers and the documentation read them, and `__getattr__` resolves each
-# name to the module its statement names.
+# Every public name is imported on first use (PEP 562), so that `import elasticoop`
+# costs nothing until a name is used: the command line answers `--version` and
+# `--help` without importing JAX, and a first `simulate` does not pay for scipy,
+# pandas, xarray, matplotlib, pydantic or optax. The imports below are the one list
+# of these names: type checkers and the documentation read them, and `__getattr__`
+# resolves each name to the module its statement names.
 if typing.TYPE_CHECKING:
     from . import montecarlo as montecarlo
     from ._analysis import (
@@ -93,6 +36,8 @@ if typing.TYPE_CHECKING:
         static_equilibrium as static_equilibrium,
         trajectory_load_distribution as trajectory_load_distribution,
     )
+    from ._body import RigidBody as RigidBody, kinetic_energy as kinetic_energy
+    from ._cache import enable_compilation_cache as enable_compilation_cache
     from ._config import (
         DataFileError as DataFileError,
         ScenarioError as ScenarioError,
@@ -103,6 +48,14 @@ if typing.TYPE_CHECKING:
         load_study as load_study,
     )
     from ._examples import default_scenario as default_scenario
+    from ._forces import (
+        AbstractForce as AbstractForce,
+        ConstantForce as ConstantForce,
+        FeedbackForce as FeedbackForce,
+        PoseTracking as PoseTracking,
+        SampledForce as SampledForce,
+        generalized_wrench as generalized_wrench,
+    )
     from ._identify import (
         AbstractTransform as AbstractTransform,
         Bounded as Bounded,
@@ -118,6 +71,35 @@ if typing.TYPE_CHECKING:
         savitzky_golay as savitzky_golay,
     )
     from ._io.xarray import trajectory_to_xarray as trajectory_to_xarray
+    from ._lagrange import (
+        accelerations as accelerations,
+        constrained_accelerations as constrained_accelerations,
+        damping_forces as damping_forces,
+        elastic_forces as elastic_forces,
+        inverse_dynamics as inverse_dynamics,
+        mass_matrix as mass_matrix,
+        velocity_terms as velocity_terms,
+    )
+    from ._models import (
+        AbstractElasticModel as AbstractElasticModel,
+        Connection as Connection,
+        ImmobileModel as ImmobileModel,
+        MobileModel as MobileModel,
+        connection_dissipation as connection_dissipation,
+        connection_potential as connection_potential,
+        deflection as deflection,
+        linearize_mobile as linearize_mobile,
+    )
+    from ._motion import (
+        AbstractMotion as AbstractMotion,
+        PrescribedMotion as PrescribedMotion,
+        SplineMotion as SplineMotion,
+    )
+    from ._options import (
+        GIMBAL_TOL as GIMBAL_TOL,
+        LINK_TOL as LINK_TOL,
+        SimulationOptions as SimulationOptions,
+    )
     from ._plotting import (
         plot_coordinates as plot_coordinates,
         plot_elastic_wrench as plot_elastic_wrench,
@@ -131,6 +113,23 @@ if typing.TYPE_CHECKING:
         plot_study_sensitivity as plot_study_sensitivity,
         save_animation as save_animation,
     )
+    from ._rotations import (
+        RPY as RPY,
+        ZXZ as ZXZ,
+        AbstractRotation as AbstractRotation,
+        get_rotation as get_rotation,
+    )
+    from ._scenario import (
+        PrescribedSpec as PrescribedSpec,
+        Scenario as Scenario,
+    )
+    from ._simulate import (
+        SimulationError as SimulationError,
+        simulate as simulate,
+    )
+    from ._status import Status as Status
+    from ._integrate import StepwiseAdjoint as StepwiseAdjoint
+    from ._trajectory import Trajectory as Trajectory
 
 
 __getattr__, __dir__ = _lazy_attributes(__name__, __file__)

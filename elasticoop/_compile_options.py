@@ -1,14 +1,10 @@
 """`filter_jit`, with XLA options that shorten compilation: first-call latency.
 
 In a fresh process the first `simulate` and the first scenario load are mostly XLA
-compiling (`benchmarks/latency.py`). `FAST_COMPILE` turns off XLA's CPU fusion
-emitters, so that fused loops are emitted by its older elemental emitter. On the
-default scenario (2-core x86_64 CPU) the simulation then compiled in about 1.9 s
-instead of 2.7 s and its static equilibrium in 0.75 s instead of 1.7 s, and they ran
-in the same time: one `simulate` call (Python dispatch included) 22.3-22.5 ms with
-or without it, and the Monte Carlo batch 299 trajectories per second with it against
-291 without (`benchmarks/montecarlo.py`, 4096 samples on one device). The option is
-one of the CPU compiler's.
+compiling. `FAST_COMPILE` turns off XLA's CPU fusion emitters, so that fused loops
+are emitted by its older elemental emitter: the library's programs compile in less
+time and run in the same time (`python benchmarks/latency.py` and
+`benchmarks/montecarlo.py` measure both). The option is one of the CPU compiler's.
 
 JAX accepts compiler options only on the outermost compiled program, so
 `fast_compile_jit` passes them only where its function is called outside any JAX

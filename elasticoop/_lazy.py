@@ -8,10 +8,22 @@ that importing the package does not import what those names need.
 
 import ast
 import importlib
+import os
 import pathlib
 import sys
 from collections.abc import Callable
 from typing import Any
+
+
+def use_float64() -> None:
+    """Turn on JAX's 64-bit mode (`jax_enable_x64`) without importing JAX: at once
+    if JAX is imported already, else through `JAX_ENABLE_X64`, which JAX reads when
+    it is imported."""
+    config = getattr(sys.modules.get("jax"), "config", None)
+    if config is not None:
+        config.update("jax_enable_x64", True)
+    else:
+        os.environ["JAX_ENABLE_X64"] = "1"
 
 
 def lazy_names(init_file: str) -> dict[str, str]:

@@ -1,8 +1,10 @@
+import gc
 import os
 import shutil
 import tempfile
 
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 # No implicit dtype promotion, as in diffrax's tests.
@@ -20,6 +22,17 @@ if "ELASTICOOP_CACHE_DIR" not in os.environ:
     os.environ["ELASTICOOP_CACHE_DIR"] = _own_cache
 
 
+# A pytest-xdist worker reports that it finished in its own `pytest_sessionfinish`
+# (after every other implementation); the controller then shuts it down and gives
+# it 5 s to exit before execnet sends it SIGINT, whose KeyboardInterrupt, landing in
+# a garbage-collection callback (JAX's `_xla_gc_callback`, a WeakSet's), prints a
+# stray traceback at the end of a passing run. Freeing JAX's compiled programs
+# (thousands of them in a worker) and collecting before that report leaves the
+# worker little to free on its way out.
+@pytest.hookimpl(trylast=True)
 def pytest_sessionfinish(session, exitstatus):
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        jax.clear_caches()
+        gc.collect()
     if _own_cache is not None:
         shutil.rmtree(_own_cache, ignore_errors=True)

@@ -1,13 +1,31 @@
 """The main job: the built-in scenario runs and its energy balance closes."""
 
+import json
 import runpy
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from elasticoop._cli.demo import run_default
 from elasticoop._io.summary import format_summary
+
+# What the command line's answers must not import (`check` needs JAX, equinox,
+# diffrax and pydantic for the scenario and its static equilibrium).
+HEAVY = (
+    "jax",
+    "equinox",
+    "diffrax",
+    "pydantic",
+    "scipy.signal",
+    "scipy.stats",
+    "matplotlib",
+    "xarray",
+    "pandas",
+    "optax",
+    "h5py",
+)
 
 # The balance closes to the solver's tolerance (rtol 1e-8) times the energies.
 BALANCE_RTOL = 1e-6
@@ -47,3 +65,40 @@ def test_python_dash_m_runs_the_demo():
     assert out.returncode == 0, out.stderr
     assert "peak grasp load (elastic + damping)" in out.stdout
     assert "residual" in out.stdout
+
+
+def test_command_line_answers_without_the_heavy_modules():
+    """`--version` and `--help` import neither JAX nor the scientific stack, and
+    `check` (which solves the scenario's static equilibrium) none of what plotting,
+    data files or fitting need: the command line answers at once."""
+    scenario = Path(__file__).resolve().parents[1] / "elasticoop/scenarios"
+    code = f"""
+import contextlib, io, json, sys
+from elasticoop._cli import main
+heavy = lambda: sorted(m for m in {HEAVY!r} if m in sys.modules)
+with contextlib.redirect_stdout(io.StringIO()):
+    codes = [main(["--version"]), main(["--help"])]
+    light = heavy()
+    codes.append(main(["check", {str(scenario / "beam_lift.toml")!r}]))
+print(json.dumps([codes, light, heavy()]))
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 0, out.stderr
+    codes, after_help, after_check = json.loads(out.stdout.strip().splitlines()[-1])
+    assert codes == [0, 0, 0]
+    assert after_help == []
+    assert set(after_check) <= {"jax", "diffrax", "equinox", "pydantic"}, after_check
+
+
+def test_each_command_is_listed_with_its_own_help_line():
+    """`elasticoop --help` lists each command with the help line of its module
+    without importing it; the line is the one the module gives."""
+    from elasticoop._cli import COMMANDS, build_parser
+
+    (full,) = build_parser()._subparsers._group_actions
+    listed = {action.dest: action.help for action in full._choices_actions}
+    assert listed == COMMANDS
+    (stubs,) = build_parser([])._subparsers._group_actions
+    assert {a.dest: a.help for a in stubs._choices_actions} == COMMANDS

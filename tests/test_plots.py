@@ -12,8 +12,11 @@ from elasticoop._plotting import (
     plot_elastic_wrench,
     plot_energy,
     plot_snapshots,
+    plot_study_histograms,
+    plot_study_quantiles,
     save_animation,
 )
+from elasticoop._plotting.view3d import inertia_box
 
 TS = jnp.linspace(0.0, 0.2, 11)
 # The residual is summed in another order than Trajectory.energy_residual: energies
@@ -103,15 +106,96 @@ def test_snapshots_figure(traj, immobile_traj):
     assert len(axes) == 3 and all(ax.name == "3d" for ax in axes)
     assert [ax.get_title() for ax in axes] == ["t = 0 s", "t = 0.1 s", "t = 0.2 s"]
     assert (axes[0].get_xlabel(), axes[0].get_zlabel()) == ("x [m]", "z [m]")
-    # one link line, then a triad (3 lines) per body
+    # at the start: one link line, then a triad (3 lines) per body; later panels
+    # first draw the object's path since the start
     assert len(axes[0].get_lines()) == 1 + 3 * 2
-    link = axes[-1].get_lines()[0]
+    path, link = axes[-1].get_lines()[:2]
+    assert len(axes[-1].get_lines()) == 1 + 1 + 3 * 2
     np.testing.assert_allclose(link.get_data_3d()[2], traj.y[-1, :, 2])
+    np.testing.assert_allclose(path.get_data_3d()[2], traj.y[:, 0, 2])
+    # a box per body, and the boxes at the start drawn faintly after the start
+    assert len(axes[0].collections) == 2 + 2  # the boxes and the two centre dots
+    assert len(axes[-1].collections) == 2 + 2 + 2
     labels = [t.get_text() for t in fig.legends[0].get_texts()]
-    assert labels == ["body x axis", "body y axis", "body z axis", "link"]
+    assert labels == [
+        "body x axis",
+        "body y axis",
+        "body z axis",
+        "link",
+        "at the start",
+        "object's path",
+    ]
     assert len(plot_snapshots(immobile_traj).get_axes()) == 4
     with pytest.raises(ValueError, match="outside"):
         plot_snapshots(traj, times=[5.0])
+    with pytest.raises(ValueError, match="sizes"):
+        plot_snapshots(traj, sizes=[[0.1, 0.1, 0.1]])
+
+
+def test_snapshots_frame_the_bodies_at_one_scale(traj):
+    """The axes hold every body's box over the run, at the same scale on the three
+    axes (the boxes keep their shapes), and fit the motion: no axis is longer than
+    the scene needs (the longest spans the boxes' extent plus a margin)."""
+    sizes = np.array([[0.4, 0.1, 0.05], [0.02, 0.02, 0.02]])
+    (ax,) = plot_snapshots(traj, times=[0.2], sizes=sizes).get_axes()
+    limits = np.array([ax.get_xlim(), ax.get_ylim(), ax.get_zlim()])
+    spans = limits[:, 1] - limits[:, 0]
+    np.testing.assert_allclose(
+        ax.get_box_aspect() / spans,
+        1 / spans.max() * 1.0 * (ax.get_box_aspect().max()),
+        rtol=1e-9,
+    )
+    r = np.asarray(traj.y[:, :, :3])
+    reach = np.linalg.norm(sizes, axis=1).max() / 2
+    assert np.all(limits[:, 0] <= r.min((0, 1)) - 0.0) and np.all(
+        limits[:, 1] >= r.max((0, 1))
+    )
+    extent = (r.max((0, 1)) - r.min((0, 1))).max() + 2 * reach
+    assert spans.max() < 1.5 * extent
+
+
+def test_inertia_box_is_the_uniform_box():
+    # a uniform box of mass 12 kg and sides 1, 2, 3 m: A = m (b^2 + c^2) / 12 ...
+    sides = inertia_box([12.0], [[13.0, 10.0, 5.0]])
+    np.testing.assert_allclose(sides, [[1.0, 2.0, 3.0]])
+    # a flat body at the triangle inequality's edge: a plate of no thickness
+    np.testing.assert_allclose(inertia_box(1.0, [1.0, 2.0, 3.0])[2], 0.0, atol=1e-7)
+
+
+def _study(moving_y: bool):
+    """A made-up study's results: 6 samples, 5 times, 2 bodies, x y z; only z
+    varies (and y of body 1 when `moving_y`)."""
+    import xarray as xr
+
+    rng = np.random.default_rng(0)
+    pose = np.zeros((6, 5, 2, 3))
+    pose[..., 2] = rng.normal(size=(6, 5, 2))
+    if moving_y:
+        pose[:, :, 1, 1] = rng.normal(size=(6, 5))
+    peak = np.stack([rng.normal(size=6), np.full(6, 3.0)], axis=1)
+    return xr.Dataset(
+        {
+            "pose": (("sample", "time", "body", "coordinate"), pose),
+            "peak": (("sample", "connection"), peak),
+            "status": (("sample",), np.zeros(6, int)),
+        },
+        coords={
+            "time": np.linspace(0, 1, 5),
+            "body": ["beam", "left"],
+            "coordinate": ["x", "y", "z"],
+            "connection": ["a", "b"],
+        },
+    )
+
+
+def test_study_plots_leave_out_what_never_moves():
+    fig = plot_study_quantiles(_study(moving_y=True), "pose", "m")
+    titles = [ax.get_title() for ax in fig.get_axes() if ax.get_visible()]
+    assert titles == ["beam, z", "left, y", "left, z"]
+    assert "not shown: beam, x, beam, y, left, x" in fig._suptitle.get_text()
+    fig = plot_study_histograms(_study(moving_y=False), "peak", thresholds=[1.0])
+    assert [ax.get_title() for ax in fig.get_axes() if ax.get_visible()] == ["a"]
+    assert "not shown: b" in fig._suptitle.get_text()
 
 
 def test_animation_gif(traj, tmp_path):

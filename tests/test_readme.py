@@ -1,7 +1,8 @@
-"""The README is executed: every ```python block runs, in order, in one namespace
-(as a reader pasting them into one Python session would), and each block's result
-is checked; the scenario example is the packaged file, and the images and shell
-commands it shows exist."""
+"""The README and the Python guide (docs/guide.md) are executed: the README's
+example is the guide's first block, and every ```python block of the guide runs, in
+order, in one namespace (as a reader pasting them into one Python session would),
+each block's result checked. The README keeps its promises: its size, its set-up
+commands (CI runs the test command), its links and the commands it names."""
 
 import contextlib
 import pathlib
@@ -11,10 +12,15 @@ import jax
 import numpy as np
 import pytest
 
-README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+GUIDE = ROOT / "docs" / "guide.md"
 FENCE = re.compile(r"^ *```(\w*)\n(.*?)^ *```", flags=re.S | re.M)
+# The README stays a front door: pitch, set-up, one example, links.
+MAX_README_BYTES = 8 * 1024
 
-# One marker per python block, in README order: a string only that block contains.
+# One marker per python block of the guide, in order: a string only that block
+# contains.
 MARKERS = {
     "first": "eo.MobileModel([beam, grasp, grasp], grasps)",
     "gradient": "jax.grad(final_height)",
@@ -23,9 +29,9 @@ MARKERS = {
     "sensitivities": "mc.local_sensitivities(study",
     "identification": "eo.identify(model, [experiment], where)",
 }
-# The earlier blocks each block uses (the README says which example continues
-# which). Blocks run in README order in one namespace, as in a reader's session;
-# a block no later one needs (the gradient, slow to compile) may be left out.
+# The earlier blocks each block uses (the guide says which example continues
+# which). Blocks run in order in one namespace, as in a reader's session; a block
+# no later one needs (the gradient, slow to compile) may be left out.
 NEEDS = {
     "first": (),
     "gradient": ("first",),
@@ -45,17 +51,17 @@ def _fences(text: str) -> list[tuple[str, int, str]]:
     ]
 
 
-def _python_blocks() -> list[tuple[int, str]]:
+def _python_blocks(path: pathlib.Path = GUIDE) -> list[tuple[int, str]]:
     return [
         (line, code)
-        for lang, line, code in _fences(README.read_text())
+        for lang, line, code in _fences(path.read_text())
         if lang == "python"
     ]
 
 
 class _Session:
-    """The README's python blocks, run in README order in one namespace, in a
-    folder of their own (the Monte Carlo example writes a store)."""
+    """The guide's python blocks, run in order in one namespace, in a folder of
+    their own (the Monte Carlo example writes a store)."""
 
     def __init__(self, folder: pathlib.Path):
         self.folder = folder
@@ -69,15 +75,15 @@ class _Session:
         blocks = dict(zip(order, _python_blocks(), strict=True))
         needed = {name, *NEEDS[name]}
         if needed & self.failed:
-            pytest.fail(f"the README's {sorted(needed & self.failed)} block failed")
+            pytest.fail(f"the guide's {sorted(needed & self.failed)} block failed")
         todo = sorted(needed - set(self.done), key=order.index)
         with contextlib.chdir(self.folder):
             for block in todo:
                 later = [b for b in self.done if order.index(b) > order.index(block)]
                 assert not later, f"{block!r} would run after {later}"
                 line, code = blocks[block]
-                # padded so that tracebacks give the README's line numbers
-                source = compile("\n" * line + code, str(README), "exec")
+                # padded so that tracebacks give the guide's line numbers
+                source = compile("\n" * line + code, str(GUIDE), "exec")
                 try:
                     exec(source, self.namespace)
                 except BaseException:
@@ -93,13 +99,15 @@ def readme(tmp_path_factory):
 
 
 def test_every_python_block_is_checked():
-    text = README.read_text()
-    languages = {lang for lang, _, _ in _fences(text)}
-    # an unlabelled fence would hide code from these tests
-    assert languages <= {"python", "bash", "toml"}, languages
+    for path in (README, GUIDE):
+        languages = {lang for lang, _, _ in _fences(path.read_text())}
+        # an unlabelled fence would hide code from these tests
+        assert languages <= {"python", "bash", "toml"}, (path.name, languages)
     blocks = [code for _, code in _python_blocks()]
     owners = [[name for name, m in MARKERS.items() if m in code] for code in blocks]
     assert owners == [[name] for name in MARKERS], owners
+    # the README's one example is the guide's first
+    assert [code for _, code in _python_blocks(README)] == blocks[:1]
 
 
 def test_first_simulation(readme):
@@ -224,78 +232,36 @@ def test_identification(readme):
     np.testing.assert_allclose(leaves(result.model), result.estimate)
 
 
-def test_readme_scenario_example_is_the_packaged_default():
-    import tomllib
-
-    from elasticoop._config import build_scenario
-
-    text = README.read_text()
-    blocks = [code for lang, _, code in _fences(text) if lang == "toml"]
-    assert blocks, "README has no scenario example"
-    packaged = README.parent / "elasticoop" / "scenarios" / "beam_lift.toml"
-    assert blocks[0] == packaged.read_text()
-    scenario = build_scenario(tomllib.loads(blocks[0]), "README.md")
-    assert scenario.body_names == ("beam", "left", "right")
+def test_readme_is_short():
+    assert len(README.read_bytes()) <= MAX_README_BYTES
 
 
-def test_readme_images_and_commands_exist():
-    from elasticoop._cli import build_parser
+def test_readme_links_and_commands_exist():
+    from elasticoop._cli import COMMANDS
 
     text = README.read_text()
-    images = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
-    assert images and all((README.parent / image).is_file() for image in images)
-    links = re.findall(r"\]\(((?!https?:)[^)]+)\)", text)
-    assert all((README.parent / link).exists() for link in links), links
+    links = re.findall(r"\]\(((?!https?:)[^)#]+)(?:#[^)]*)?\)", text)
+    assert links and all((ROOT / link).exists() for link in links), links
     shell = "".join(code for lang, _, code in _fences(text) if lang == "bash")
     commands = set(re.findall(r"^ *elasticoop (\w+)", shell, flags=re.M))
-    known = set(build_parser()._subparsers._group_actions[0].choices)
-    assert commands and commands <= known, commands - known
-    # and those in the text, such as `elasticoop check FILE`
-    inline = set(re.findall(r"`elasticoop (\w+)", text))
-    assert inline <= known, inline - known
+    commands |= set(re.findall(r"`elasticoop (\w+)", text))  # in the text
+    assert commands <= set(COMMANDS), commands - set(COMMANDS)
 
 
 def test_readme_set_up_commands():
-    """CI takes the test command from the first line that mentions pytest."""
+    """The README opens with two commands: install and run the main job, install
+    and run the fast tier of the tests. CI takes the test command from the first
+    line that mentions pytest, and then runs the slow tier, `-m slow`: together
+    they run every test once."""
     text = README.read_text()
     lang, line, code = _fences(text)[0]
-    assert lang == "bash" and line == 3
+    assert lang == "bash" and line < 20
     first, second = code.splitlines()
-    assert "pip install . && python -m elasticoop" in first
+    assert first.endswith("pip install . && python -m elasticoop")
     pytest_line = next(x for x in text.splitlines() if "pytest" in x)
-    assert pytest_line == second and second.endswith("pytest -n auto -q")
-
-
-def test_readme_layout_matches_the_package_and_its_layers():
-    import tomllib
-
-    text = README.read_text()
-    layout = text[text.index("## Layout") :]
-    package = README.parent / "elasticoop"
-    entries = {
-        p.name + "/" if p.is_dir() else p.name
-        for p in package.iterdir()
-        if not p.name.startswith("__") and (p.is_dir() or p.suffix == ".py")
-    }
-    assert {e for e in entries if f"`{e}`" not in layout} == set()
-    named = set(re.findall(r"`(\w+\.py|\w+/)`", layout))
-    exists = {p.name + "/" if p.is_dir() else p.name for p in package.rglob("*")}
-    exists |= {p.name + "/" for p in README.parent.iterdir() if p.is_dir()}
-    assert named <= exists, named - exists
-    # the layers are described bottom up, in the order of the import contract
-    project = tomllib.loads((README.parent / "pyproject.toml").read_text())
-    (contract,) = [
-        c for c in project["tool"]["importlinter"]["contracts"] if c["type"] == "layers"
-    ]
-
-    def first_mention(module: str) -> int:
-        found = [layout.find(f"`{module}{end}`") for end in (".py", "/")]
-        assert max(found) >= 0, f"{module} is not in the README's layout"
-        return min(i for i in found if i >= 0)
-
-    spans = [
-        [first_mention(m.strip()) for m in layer.split(":")]
-        for layer in reversed(contract["layers"])
-    ]
-    for lower, upper in zip(spans, spans[1:]):
-        assert max(lower) < min(upper), contract["layers"]
+    assert pytest_line == second
+    assert second.endswith(
+        'pip install -e ".[test]" && pytest -n auto -q -m "not slow"'
+    )
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert "grep -m1 'pytest' README.md" in ci and "-m slow" in ci

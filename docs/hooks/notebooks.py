@@ -1,8 +1,11 @@
 """MkDocs hook: the notebooks live in `notebooks/` beside `docs/`, where the tests
 execute them; this adds each `notebooks/*.ipynb` to the site's files as
-`notebooks/<name>.ipynb`, before mkdocs-jupyter turns them into pages."""
+`notebooks/<name>.ipynb`, before mkdocs-jupyter turns them into pages, and takes
+the MathJax loader of nbconvert's template out of those pages (the site's own KaTeX
+renders their maths, with no network)."""
 
 import pathlib
+import re
 
 from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File, Files
@@ -22,3 +25,16 @@ def on_files(files: Files, config) -> Files:
             )
         )
     return files
+
+
+# nbconvert's template loads MathJax (from a CDN unless told otherwise) between
+# these two comments.
+MATHJAX = re.compile(
+    r"<!-- Load mathjax -->.*?<!-- End of mathjax configuration -->", flags=re.S
+)
+
+
+def on_post_page(output: str, page, config) -> str:
+    if page.file.src_uri.endswith(".ipynb"):
+        output = MATHJAX.sub("", output)
+    return output

@@ -1,6 +1,9 @@
 """Plots of a Monte Carlo study's results: quantile bands of the outputs over time,
 histograms of the outputs without a time axis (with their thresholds), and the
-rank-correlation sensitivity ranking. Every function returns the Figure."""
+rank-correlation sensitivity ranking. Every function returns the Figure. An element
+of an output that takes one value in every valid sample at every time (a
+coordinate that never moves, such as y in a planar lift) gets no panel; the title
+names the elements left out."""
 
 import math
 
@@ -14,20 +17,47 @@ from ._common import new_figure
 MAX_PANELS = 24
 # Bands of the quantile plot: (lower, upper) quantiles, from wide to narrow.
 BANDS = ((0.05, 0.95), (0.25, 0.75))
+# An element whose valid values spread by no more than this, relative to their
+# size (or absolutely below 1), never moves.
+STILL = 1e-9
 
 
-def _elements(x: xr.DataArray, skip: tuple[str, ...] = ()) -> list[tuple[dict, str]]:
-    """`(isel indices, label)` of every element over the axes not in `skip`."""
+def _still(values: np.ndarray) -> bool:
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return False  # no valid value: shown (empty), not taken for constant
+    return float(np.ptp(finite)) <= STILL * max(1.0, float(np.max(np.abs(finite))))
+
+
+def _elements(
+    x: xr.DataArray, skip: tuple[str, ...] = (), ok=None
+) -> tuple[list[tuple[dict, str]], list[str]]:
+    """`(isel indices, label)` of every element over the axes not in `skip` whose
+    values over the samples `ok` (default all) and the skipped axes vary, and the
+    labels of those that do not (all of them are kept when none varies)."""
     dims = [str(d) for d in x.dims[1:] if d not in skip]
     shape = [x.sizes[d] for d in dims]
-    out = []
+    ok = np.ones(x.shape[0], bool) if ok is None else np.asarray(ok)
+    moving: list[tuple[dict, str]] = []
+    still: list[tuple[dict, str]] = []
     for index in np.ndindex(*shape):
         labels = []
         for dim, k in zip(dims, index):
             coord = x.coords.get(dim)
             labels.append(str(coord.values[k]) if coord is not None else str(k))
-        out.append((dict(zip(dims, index)), ", ".join(labels)))
-    return out[:MAX_PANELS]
+        element = (dict(zip(dims, index)), ", ".join(labels))
+        values = np.asarray(x.isel(element[0]).values)[ok]
+        (still if _still(values) else moving).append(element)
+    if not moving:
+        return still[:MAX_PANELS], []
+    return moving[:MAX_PANELS], [label for _, label in still]
+
+
+def _left_out(still: list[str]) -> str:
+    if not still:
+        return ""
+    shown = ", ".join(still[:8]) + (", ..." if len(still) > 8 else "")
+    return f"\n(constant in every sample, not shown: {shown})"
 
 
 def _panels(n: int, width: float = 3.2, height: float = 2.4):
@@ -49,7 +79,7 @@ def plot_study_quantiles(ds: xr.Dataset, name: str, unit: str | None = None):
     qs = sorted({q for band in BANDS for q in band} | {0.5})
     stats = statistics(ds, name, qs)
     t = np.asarray(x.coords["time"].values)
-    elements = _elements(x, skip=("time",))
+    elements, still = _elements(x, ("time",), valid_samples(ds, name).values)
     fig, axes = _panels(len(elements))
     for ax, (index, label) in zip(axes, elements):
         quant = stats["quantiles"].isel(index)
@@ -69,7 +99,7 @@ def plot_study_quantiles(ds: xr.Dataset, name: str, unit: str | None = None):
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel(f"{name}" + (f" [{unit}]" if unit else ""))
     axes[0].legend(fontsize="small")
-    fig.suptitle(f"{name}: quantiles over {int(stats['n'])} samples")
+    fig.suptitle(f"{name}: quantiles over {int(stats['n'])} samples" + _left_out(still))
     return fig
 
 
@@ -80,7 +110,7 @@ def plot_study_histograms(
     panel per element, with its `thresholds` as vertical lines."""
     x = ds[name]
     ok = valid_samples(ds, name).values
-    elements = _elements(x)
+    elements, still = _elements(x, ok=ok)
     fig, axes = _panels(len(elements))
     for ax, (index, label) in zip(axes, elements):
         values = x.isel(index).values[ok]
@@ -93,7 +123,7 @@ def plot_study_histograms(
     axes[0].set_ylabel("samples")
     if len(thresholds):
         axes[0].legend(fontsize="small")
-    fig.suptitle(f"{name}: {int(ok.sum())} samples")
+    fig.suptitle(f"{name}: {int(ok.sum())} samples" + _left_out(still))
     return fig
 
 
@@ -101,7 +131,7 @@ def plot_study_sensitivity(ds: xr.Dataset, name: str, top: int = 10):
     """Spearman's rank correlation of output `name` (no time axis) with each
     varied parameter entry, the `top` largest in magnitude, one panel per
     element."""
-    elements = _elements(ds[name])
+    elements, still = _elements(ds[name], ok=valid_samples(ds, name).values)
     fig, axes = _panels(len(elements), width=4.2, height=0.35 * top + 1.0)
     for ax, (index, label) in zip(axes, elements):
         rho = rank_correlations(ds, name, **index)[:top]
@@ -114,5 +144,5 @@ def plot_study_sensitivity(ds: xr.Dataset, name: str, top: int = 10):
         ax.set_xlabel("Spearman rank correlation")
         ax.set_title(label or name, fontsize="medium")
         ax.grid(True, axis="x", alpha=0.3)
-    fig.suptitle(f"{name}: sensitivity to the parameters")
+    fig.suptitle(f"{name}: sensitivity to the parameters" + _left_out(still))
     return fig

@@ -60,22 +60,16 @@ from .study import (
 DEFAULT_BATCH_WIDTH = 128
 """Samples integrated together on each device unless `run_study` is given a
 `batch_width` (fewer when the samples do not fill every device, and halved until a
-batch fits the memory budget: `default_batch_width`). Among the fastest widths on
-the 2-core CPU (one XLA device per core) for the 3-body study of
-`benchmarks/montecarlo.py`, 1024 samples: 1.76-1.78 ms per sample at 128, 1.70-1.81
-at 64, 1.95-2.00 at 256, 2.08 at 512 (a wider batch leaves the caches), measured
-when a batch still ran until its slowest sample was done. With each waiting
-sample starting as one stops, 128 and 64 stayed within noise of each other (on
-one core of the 2-core AMD EPYC, Dopri8 at rtol 1e-9: 1.30-1.31 against
-1.27-1.30 ms)."""
+batch fits the memory budget: `default_batch_width`). Among the fastest widths on a
+CPU: a wider batch leaves the caches, a narrower one shares the loop's fixed costs
+among fewer samples (`python benchmarks/montecarlo.py --batch-widths ...` measures
+them; docs/performance.md)."""
 ACCELERATOR_BATCH_WIDTH = 2**17
 """The same on GPUs (and any device that is not a CPU): there a batch's steps cost
-about the same at any width up to the device's size, so the wider the quicker. On
-one NVIDIA H200 (`python benchmarks/montecarlo.py --batches 1024 10240 102400
---batch-widths 1024 8192 102400`), the 3-body study of 102400 samples with Dopri8
-at rtol 1e-9 took 16.4 s at width 1024, 3.81 s at 8192 and 1.20 s at 102400 (one
-batch); Tsit5 at rtol 1e-8 30.2, 6.56 and 1.88 s. The cap keeps a batch to about a
-second or two, so that a long study's progress shows and a killed run loses little."""
+about the same at any width up to the device's size, so the wider the quicker
+(`python benchmarks/montecarlo.py --batches 1024 10240 102400 --batch-widths 1024
+8192 102400` measures it; docs/performance.md). The cap keeps a batch short, so
+that a long study's progress shows and a killed run loses little."""
 DEFAULT_MEMORY_BUDGET = 2**30  # bytes, where the devices do not report their memory
 # Share of an accelerator's memory (the smallest of the devices) a chunk may use
 # per device when the devices report their memory (GPUs); the rest is left to
