@@ -124,11 +124,23 @@ if typing.TYPE_CHECKING:
         plot_fit as plot_fit,
         plot_loss_history as plot_loss_history,
         plot_mode_shapes as plot_mode_shapes,
+        plot_morris as plot_morris,
         plot_snapshots as plot_snapshots,
+        plot_sobol_convergence as plot_sobol_convergence,
+        plot_sobol_heatmap as plot_sobol_heatmap,
+        plot_sobol_indices as plot_sobol_indices,
         plot_study_histograms as plot_study_histograms,
         plot_study_quantiles as plot_study_quantiles,
         plot_study_sensitivity as plot_study_sensitivity,
         save_animation as save_animation,
+    )
+    from .montecarlo import (
+        check_dgsm_bounds as check_dgsm_bounds,
+        dgsm as dgsm,
+        morris_effects as morris_effects,
+        sensitivity_study as sensitivity_study,
+        sobol_convergence as sobol_convergence,
+        sobol_indices as sobol_indices,
     )
 
 
