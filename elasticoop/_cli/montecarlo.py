@@ -15,6 +15,7 @@ from .._io.study_summary import format_study_report, output_names, study_report
 from ..montecarlo import StoreError, StoreLockedError, open_study, run_study
 from ..montecarlo.distributed import is_first_process
 from ..montecarlo.execution import ACCELERATOR_BATCH_WIDTH, DEFAULT_BATCH_WIDTH
+from . import sensitivity
 from ._common import EXIT_OK, UserError, common_options, positive_int, say
 
 NAME = "montecarlo"
@@ -32,7 +33,8 @@ def register(subparsers) -> None:
         help="run a Monte Carlo study file, or summarise its results",
         usage=(
             "elasticoop montecarlo STUDY.toml -o STORE [options]\n"
-            "       elasticoop montecarlo summary STORE [-q]"
+            "       elasticoop montecarlo summary STORE [-q]\n"
+            "       elasticoop montecarlo sensitivity STUDY.toml -o STORE | STORE"
         ),
         description=(
             "Run the Monte Carlo study that the study file STUDY.toml describes "
@@ -93,6 +95,8 @@ def register(subparsers) -> None:
 
 
 def execute(args) -> int:
+    if args.target == "sensitivity":
+        return sensitivity.execute(args)
     if args.target == SUMMARY:
         return summarise(args)
     return run(args)

@@ -19,6 +19,8 @@ percentile bootstrap intervals (`scipy.stats.bootstrap`, samples resampled with
 their outputs).
 """
 
+import warnings
+
 import numpy as np
 import xarray as xr
 from scipy.stats import bootstrap as scipy_bootstrap
@@ -149,17 +151,19 @@ def _interval(g2, y, constants, n_resamples, confidence, seed):
         var = np.var(y, axis=axis, ddof=1)
         return constants[:, None] * nu / var  # (elements, factors, resamples)
 
-    res = scipy_bootstrap(
-        (g2, y[..., None]),
-        statistic,
-        paired=True,
-        vectorized=True,
-        axis=0,
-        n_resamples=n_resamples,
-        confidence_level=confidence,
-        method="percentile",
-        rng=np.random.default_rng(seed),
-    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # degenerate resamples of a constant factor
+        res = scipy_bootstrap(
+            (g2, y[..., None]),
+            statistic,
+            paired=True,
+            vectorized=True,
+            axis=0,
+            n_resamples=n_resamples,
+            confidence_level=confidence,
+            method="percentile",
+            rng=np.random.default_rng(seed),
+        )
     return res.confidence_interval.low.T, res.confidence_interval.high.T
 
 
