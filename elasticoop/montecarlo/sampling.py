@@ -243,5 +243,9 @@ def morris_grid(key_data, d: int, n_trajectories: int) -> np.ndarray:
     from SALib.sample import morris
 
     rng = np.random.default_rng(np.asarray(key_data).tolist())
-    problem = {"num_vars": d, "bounds": [[0.0, 1.0]] * d}
+    problem = {
+        "num_vars": d,
+        "names": [f"x{k}" for k in range(d)],
+        "bounds": [[0.0, 1.0]] * d,
+    }
     return morris.sample(problem, n_trajectories, num_levels=MORRIS_LEVELS, seed=rng)
