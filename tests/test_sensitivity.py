@@ -215,3 +215,28 @@ def test_designs_refuse_sample_counts_they_cannot_have():
         _deflection_study(9)
     with pytest.raises(ValueError, match="Sobol' indices need the Saltelli design"):
         mc.sobol_indices(_results("lhs", np.ones((4, 1)), {"y": np.ones(4)}))
+
+
+@pytest.mark.slow  # ~60 s on 2 shared cores: compiles two studies
+def test_a_stored_study_extends_with_more_samples_keeping_its_chunks(tmp_path):
+    store = tmp_path / "store"
+    small = mc.run_study(
+        _deflection_study(16), store, chunk_size=24, batch_width=8, progress=False
+    )
+    assert small.sizes["sample"] == 64  # chunks 0, 1 full; chunk 2 holds 16
+    done: list[int] = []
+    large = mc.run_study(
+        _deflection_study(32),
+        store,
+        batch_width=8,
+        progress=False,
+        on_chunk=done.append,
+    )
+    assert done == [2, 3, 4, 5]  # the short last chunk again, then the new ones
+    assert large.sizes["sample"] == 128
+    for name in ("stiffness", "mass", "sag", "status"):
+        np.testing.assert_array_equal(large[name].values[:64], small[name].values)
+    ind = mc.sobol_indices(large, "sag")
+    assert ind.attrs["base_samples"] == 32
+    with pytest.raises(mc.StoreError, match="holds another study"):
+        mc.run_study(_deflection_study(16), store, batch_width=8, progress=False)

@@ -16,6 +16,7 @@ from .._config.study_schema import SensitivityTable
 from .._io.strict_json import strict_json
 from ..montecarlo import StoreError, StoreLockedError, open_study, run_study
 from ..montecarlo.distributed import is_first_process
+from ..montecarlo.sampling import rows_per_point
 from ._common import EXIT_OK, UserError, say
 
 FOLDER = "sensitivity"
@@ -181,7 +182,7 @@ def _sobol(args, ds, table, study, record, folder, name) -> list:
             plot_sobol_convergence(convergence, output).savefig(paths[-1], dpi=110)
     if table.dgsm_samples:
         study = _study_of(study, record)
-        block = study.n_samples // indices.attrs["base_samples"]
+        block = rows_per_point(study.sampling, indices.sizes["factor"])
         points = min(table.dgsm_samples, indices.attrs["base_samples"])
         measures = dgsm(
             study, np.arange(points) * block, table.outputs, **options
