@@ -96,7 +96,7 @@ def register(subparsers) -> None:
 
 def execute(args) -> int:
     if args.target == "sensitivity":
-        return sensitivity.execute(args)
+        return sensitivity.execute(args, read_record, _use_cache)
     if args.target == SUMMARY:
         return summarise(args)
     return run(args)

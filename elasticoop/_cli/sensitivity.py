@@ -24,8 +24,10 @@ RECORD = "study_file.json"  # shared with `montecarlo` (its STUDY_FILE_RECORD)
 TOP = 10  # factors printed per output element
 
 
-def execute(args) -> int:
-    """The `sensitivity` word of `elasticoop montecarlo`."""
+def execute(args, read_record, use_cache) -> int:
+    """The `sensitivity` word of `elasticoop montecarlo` (`read_record` reads the
+    study file's record in a store, `use_cache` opens the compilation cache: the
+    `montecarlo` command's own)."""
     if args.store is None:
         raise UserError(
             "give a study file and a store (elasticoop montecarlo sensitivity "
@@ -38,7 +40,7 @@ def execute(args) -> int:
             raise UserError(
                 f"{target} is a store: -o and --samples apply to running a study file"
             )
-        return analyse(args, target, None, None)
+        return analyse(args, target, None, None, read_record(target))
     if not args.output:
         raise UserError("give the folder of the results with -o STORE")
     store = pathlib.Path(args.output)
@@ -51,7 +53,6 @@ def execute(args) -> int:
             table.model_dump() | {"samples": args.samples}
         )
     from ..montecarlo import sensitivity_study
-    from .montecarlo import _use_cache
 
     study = sensitivity_study(
         study_file.study, table.method, table.samples, table.second_order
@@ -70,7 +71,7 @@ def execute(args) -> int:
         "sensitivity": table.model_dump(),
     }
     with contextlib.ExitStack() as stack:
-        _use_cache(stack)
+        use_cache(stack)
         try:
             run_study(
                 study,
@@ -84,7 +85,7 @@ def execute(args) -> int:
     _keep(store, record)
     if not is_first_process():
         return EXIT_OK
-    return analyse(args, store, table, study)
+    return analyse(args, store, table, study, record)
 
 
 def _keep(store: pathlib.Path, record: dict) -> None:
@@ -92,14 +93,11 @@ def _keep(store: pathlib.Path, record: dict) -> None:
         (store / RECORD).write_text(strict_json(record))
 
 
-def analyse(args, store: pathlib.Path, table, study) -> int:
-    from .montecarlo import read_record
-
+def analyse(args, store: pathlib.Path, table, study, record: dict) -> int:
     try:
         ds = open_study(store)
     except StoreError as err:
         raise UserError(str(err)) from err
-    record = read_record(store)
     if table is None:
         try:
             table = SensitivityTable.model_validate(record.get("sensitivity", {}))
