@@ -64,8 +64,8 @@ def register(subparsers) -> None:
         "--samples",
         type=positive_int,
         metavar="N",
-        help="draw N samples instead of the study file's (a trial run; a store "
-        "holds one sample count)",
+        help="draw N samples instead of the study file's (a trial run; more "
+        "samples extend a store, except a Latin hypercube's)",
     )
     parser.add_argument(
         "--batch-width",
