@@ -2,6 +2,7 @@
 estimator needs."""
 
 import jax
+import jax.numpy as jnp
 
 from ..sampling import active_entries, rows_per_point
 from ..study import Study
@@ -36,7 +37,7 @@ def sensitivity_study(
         parameters=study.parameters,
         outputs=study.outputs,
         n_samples=base_samples * rows_per_point(sampling, d),
-        key=jax.random.wrap_key_data(study.key_data),
+        key=jax.random.wrap_key_data(jnp.asarray(study.key_data)),
         forces=study.inputs.forces,
         sampling=sampling,
         solver=study.options.solver,

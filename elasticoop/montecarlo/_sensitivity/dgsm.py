@@ -92,7 +92,7 @@ def dgsm(
         offset += int(np.prod(study.leaf_shapes[p.name], dtype=int))
     names = list(study.outputs) if outputs is None else list(outputs)
     n = sens.sizes["sample"]
-    data = {
+    data: dict[str, tuple] = {
         "poincare": (("factor",), constants),
         "log_scale": (("factor",), logs),
     }

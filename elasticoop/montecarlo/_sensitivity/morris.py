@@ -67,7 +67,7 @@ def morris_effects(
         dims, shape = results[name].dims[1:], results[name].shape[1:]
         y, ok = output_columns(results, name)
         y = y[: n_traj * block].reshape(n_traj, block, -1)
-        usable = ok[: n_traj * block].reshape(n_traj, block, -1).all(axis=1)
+        usable = np.asarray(ok[: n_traj * block].reshape(n_traj, block, -1).all(axis=1))
         out = {k: np.full((d, y.shape[2]), np.nan) for k in keys}
         for j in range(y.shape[2]):
             keep = usable[:, j]
