@@ -107,7 +107,11 @@ if typing.TYPE_CHECKING:
         plot_fit as plot_fit,
         plot_loss_history as plot_loss_history,
         plot_mode_shapes as plot_mode_shapes,
+        plot_morris as plot_morris,
         plot_snapshots as plot_snapshots,
+        plot_sobol_convergence as plot_sobol_convergence,
+        plot_sobol_heatmap as plot_sobol_heatmap,
+        plot_sobol_indices as plot_sobol_indices,
         plot_study_histograms as plot_study_histograms,
         plot_study_quantiles as plot_study_quantiles,
         plot_study_sensitivity as plot_study_sensitivity,
@@ -130,6 +134,14 @@ if typing.TYPE_CHECKING:
     from ._status import Status as Status
     from ._integrate import StepwiseAdjoint as StepwiseAdjoint
     from ._trajectory import Trajectory as Trajectory
+    from .montecarlo import (
+        check_dgsm_bounds as check_dgsm_bounds,
+        dgsm as dgsm,
+        morris_effects as morris_effects,
+        sensitivity_study as sensitivity_study,
+        sobol_convergence as sobol_convergence,
+        sobol_indices as sobol_indices,
+    )
 
 
 __getattr__, __dir__ = _lazy_attributes(__name__, __file__)

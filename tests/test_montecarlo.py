@@ -635,7 +635,7 @@ BAD = {
         "target must be one of",
     ),
     "n_samples": (lambda: _study(n_samples=0), "n_samples must be >= 1"),
-    "sampling": (lambda: _study(sampling="sobol"), "sampling must be one of"),
+    "sampling": (lambda: _study(sampling="halton"), "sampling must be one of"),
     "rtol": (lambda: _study(rtol=-1.0), "Study.rtol must be a positive number"),
     "solver": (lambda: _study(solver="euler"), "Study.solver must be one of"),
     "max_steps": (lambda: _study(max_steps=0), "Study.max_steps must be a positive"),

@@ -22,6 +22,7 @@ from ..montecarlo import (
 from ..montecarlo.distributed import is_first_process
 from ..montecarlo.execution import ACCELERATOR_BATCH_WIDTH, DEFAULT_BATCH_WIDTH
 from ..montecarlo.store import check_store_folder
+from . import sensitivity
 from ._common import EXIT_OK, UserError, common_options, positive_int, say
 
 NAME = "montecarlo"
@@ -39,7 +40,8 @@ def register(subparsers) -> None:
         help="run a Monte Carlo study file, or summarise its results",
         usage=(
             "elasticoop montecarlo STUDY.toml -o STORE [options]\n"
-            "       elasticoop montecarlo summary STORE [-q]"
+            "       elasticoop montecarlo summary STORE [-q]\n"
+            "       elasticoop montecarlo sensitivity STUDY.toml -o STORE | STORE"
         ),
         description=(
             "Run the Monte Carlo study that the study file STUDY.toml describes "
@@ -69,8 +71,8 @@ def register(subparsers) -> None:
         "--samples",
         type=positive_int,
         metavar="N",
-        help="draw N samples instead of the study file's (a trial run; a store "
-        "holds one sample count)",
+        help="draw N samples instead of the study file's (a trial run; more "
+        "samples extend a store, except a Latin hypercube's)",
     )
     parser.add_argument(
         "--batch-width",
@@ -100,6 +102,8 @@ def register(subparsers) -> None:
 
 
 def execute(args) -> int:
+    if args.target == "sensitivity":
+        return sensitivity.execute(args, read_record, _use_cache)
     if args.target == SUMMARY:
         return summarise(args)
     return run(args)

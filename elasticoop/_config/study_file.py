@@ -36,6 +36,7 @@ from .study_schema import (
     STUDY_SECTIONS,
     STUDY_TOP_LEVEL_KEYS,
     ParameterTable,
+    SensitivityTable,
     StudyInfo,
 )
 
@@ -75,6 +76,7 @@ class StudyFile:
     description: str
     source: str
     scenario_file: str
+    sensitivity: SensitivityTable | None = None
 
 
 def load_study(path, samples: int | None = None) -> StudyFile:
@@ -151,6 +153,7 @@ class _StudyBuilder:
             scenario = self.with_time_and_solver(scenario)
             parameters = self.parameters(scenario)
             outputs, thresholds, units = self.outputs(scenario)
+            self.check_sensitivity(outputs)
             clash = {p.name for p in parameters} & set(outputs)
             for name in sorted(clash):
                 self.add(
@@ -194,7 +197,20 @@ class _StudyBuilder:
             description=self.info.description,
             source=str(self.path),
             scenario_file=scenario_file,
+            sensitivity=self.s.get("sensitivity"),
         )
+
+    def check_sensitivity(self, outputs: dict) -> None:
+        """The `[sensitivity]` table's outputs are the study's."""
+        table = self.s.get("sensitivity")
+        for name in (table.outputs or []) if table is not None else []:
+            if name not in outputs:
+                self.add(
+                    "[sensitivity]",
+                    "outputs",
+                    f"no output named {name!r} (the study's outputs: "
+                    f"{', '.join(outputs)})",
+                )
 
     # -- every table on its own ---------------------------------------------------
     def validate_tables(self) -> None:

@@ -131,6 +131,34 @@ class OutputTable(Table):
     thresholds: list[Number] = []
 
 
+class SensitivityTable(Table):
+    """`[sensitivity]`: the global sensitivity analysis that `elasticoop
+    montecarlo sensitivity` runs: its method, the base points of its design, the
+    outputs analysed and the intervals."""
+
+    method: Literal["sobol", "morris", "dgsm"] = "sobol"
+    samples: Annotated[int, Field(ge=2, le=2**24)] = 256
+    outputs: Annotated[list[Identifier], Field(min_length=1)] | None = None
+    second_order: bool = False
+    bootstrap: Annotated[int, Field(ge=10, le=100_000)] = 1000
+    confidence: Fraction = 0.95
+    dgsm_samples: Annotated[int, Field(ge=0, le=2**20)] = 0
+
+    @model_validator(mode="after")
+    def _design(self):
+        n = self.samples
+        if self.method != "morris" and n & (n - 1):
+            low = 1 << (n.bit_length() - 1)
+            raise ValueError(
+                f"samples = {n}: the {self.method} design takes a power of two of "
+                f"base points (scrambled Sobol' points keep their balance only "
+                f"then), e.g. {low} or {2 * low}"
+            )
+        if self.second_order and self.method != "sobol":
+            raise ValueError("second_order = true needs method = 'sobol'")
+        return self
+
+
 STUDY_SECTIONS = {
     "sampling": (SamplingTable, "table"),
     "initial": (StudyInitialTable, "table"),
@@ -138,6 +166,7 @@ STUDY_SECTIONS = {
     "solver": (StudySolverTable, "table"),
     "parameters": (ParameterTable, "array"),
     "outputs": (OutputTable, "array"),
+    "sensitivity": (SensitivityTable, "table"),
 }
 STUDY_REQUIRED = ("sampling", "parameters", "outputs")
 STUDY_TOP_LEVEL_KEYS = ("scenario", "name", "description")

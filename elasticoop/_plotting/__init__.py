@@ -11,6 +11,12 @@ from .montecarlo import (
     plot_study_quantiles as plot_study_quantiles,
     plot_study_sensitivity as plot_study_sensitivity,
 )
+from .sensitivity import (
+    plot_morris as plot_morris,
+    plot_sobol_convergence as plot_sobol_convergence,
+    plot_sobol_heatmap as plot_sobol_heatmap,
+    plot_sobol_indices as plot_sobol_indices,
+)
 from .time_series import (
     elastic_load_count as elastic_load_count,
     plot_coordinates as plot_coordinates,

@@ -1,5 +1,13 @@
 """Monte Carlo studies: sampling, batched execution, statistics, sensitivities."""
 
+from ._sensitivity.convergence import (
+    convergence_table as convergence_table,
+    sobol_convergence as sobol_convergence,
+)
+from ._sensitivity.design import sensitivity_study as sensitivity_study
+from ._sensitivity.dgsm import check_dgsm_bounds as check_dgsm_bounds, dgsm as dgsm
+from ._sensitivity.morris import morris_effects as morris_effects
+from ._sensitivity.sobol import sobol_indices as sobol_indices
 from .correlation import rank_correlations as rank_correlations
 from .distributions import (
     AbstractDistribution as AbstractDistribution,

@@ -36,6 +36,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from .extension import extended
+
 FORMAT = "elasticoop-montecarlo-npz/2"
 # Stores written before the checksums and the parts' digests were recorded: they
 # are read (without verification) but never resumed.
@@ -261,6 +263,7 @@ def prepare(path: str | Path, manifest: dict, trust_callables: bool = False) -> 
             f"checksums of the chunks nor digests of the outputs, distributions and "
             f"forces: open it with open_study, but resume into a new folder"
         )
+    existing = extended(path, existing, manifest)  # more samples of the same study
     _check_same_study(path, existing, manifest)
     recorded = existing["chunks"]
     if 0 < len(recorded) < manifest["n_chunks"] and not trust_callables:

@@ -26,9 +26,9 @@ from .._validation import as_float_array, check_times
 from .fingerprint import Digest, abstract
 from .outputs import Output
 from .parameters import _RESERVED, Inputs, Parameter
-from .sampling import draw
+from .sampling import QMC_DESIGNS, check_design, design_row_template, draw
 
-SAMPLING = ("random", "lhs")
+SAMPLING = ("random", "lhs", *QMC_DESIGNS)
 # What each sample starts from: its own rest state, or the initial state given.
 INITIAL = ("equilibrium", "given")
 
@@ -75,7 +75,9 @@ class Study(eqx.Module):
     - `key`: a `jax.random` key or an integer seed.
     - `sampling`: `"random"` (independent draws) or `"lhs"` (Latin hypercube: each
       scalar parameter's range is cut into `n_samples` strata of equal probability,
-      each hit once).
+      each hit once), or a quasi-Monte Carlo design of `sampling.QMC_DESIGNS`
+      (`"sobol"` points, the `"saltelli"` and `"saltelli-second-order"` designs
+      of Sobol' indices, `"morris"` trajectories; see `sampling`).
     - `initial`: what each sample starts from.
       `"given"` (the default): `y_init` and `ydot_init`, the same for every sample
       (unless they are parameters).
@@ -180,6 +182,7 @@ class Study(eqx.Module):
 
         self.parameters = tuple(parameters)
         self._leaf_shapes = self._check_parameters()
+        check_design(self)
         if not any(p.target == "y_init" for p in self.parameters):
             # every sample starts from the nominal state: it must be regular
             model.rotation.check_regular(
@@ -281,11 +284,11 @@ class Study(eqx.Module):
                     f"{drawn.shape}, which does not broadcast to the leaf's shape "
                     f"{shape}"
                 )
-            if self.sampling == "lhs" and not p.distribution.supports_ppf:
+            if self.sampling != "random" and not p.distribution.supports_ppf:
                 raise ValueError(
                     f"Parameter {p.name!r}: {type(p.distribution).__name__} has no "
-                    f"inverse CDF, so sampling='lhs' is not possible; give it a ppf "
-                    f"or use sampling='random'"
+                    f"inverse CDF, so sampling={self.sampling!r} is not possible; "
+                    f"give it a ppf or use sampling='random'"
                 )
             dims = p.leaf_dims(len(shape))
             _check_labelled(f"Parameter {p.name!r}", dims, shape, labels)
@@ -324,7 +327,8 @@ class Study(eqx.Module):
         """Shapes and dtypes of one sample's record, checked against the outputs'
         axis names. Traced once per structure: `_record_shapes` is jitted, so a
         study like an earlier one but for its arrays reuses that trace."""
-        strata = jnp.zeros((self.n_dims if self.sampling == "lhs" else 0,), jnp.int32)
+        row = design_row_template(self)
+        strata = jnp.zeros(row.shape, row.dtype)
         self._record = ()  # placeholder: the study is a complete pytree from here
         template = eqx.filter_eval_shape(_record_shapes, self, jnp.int64(0), strata)
         labels = self._labels()
@@ -481,7 +485,7 @@ class Study(eqx.Module):
             shape, law = self.leaf_shapes[p.name], p.distribution
             part = Digest().value(p, callables_traced=True)
             part.computation(p.nominal, abstract_inputs)
-            if self.sampling == "lhs":
+            if self.sampling != "random":
                 u = jax.ShapeDtypeStruct(shape, jnp.float64)
                 part.computation(law.ppf, u)
             else:

@@ -1,0 +1,49 @@
+"""A study's sensitivity design: the same study, sampled by the design that an
+estimator needs."""
+
+import jax
+import jax.numpy as jnp
+
+from ..sampling import active_entries, rows_per_point
+from ..study import Study
+
+METHODS = ("sobol", "morris", "dgsm")
+
+
+def design_of(method: str, second_order: bool = False) -> str:
+    """The sampling that `method` needs: the Saltelli design for `"sobol"`,
+    trajectories for `"morris"`, scrambled Sobol' points for `"dgsm"`."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method == "sobol":
+        return "saltelli-second-order" if second_order else "saltelli"
+    return "morris" if method == "morris" else "sobol"
+
+
+def sensitivity_study(
+    study: Study, method: str = "sobol", base_samples: int = 256, second_order=False
+) -> Study:
+    """`study` with the design of `method` on `base_samples` base points (Saltelli:
+    $N(D+2)$ runs, or $N(2D+2)$ with `second_order`; Morris: $N(D+1)$; DGSM: $N$
+    Sobol' points), $D$ the scalar parameters that vary. The key, parameters,
+    outputs, inputs and solver are kept."""
+    sampling = design_of(method, second_order)
+    d = int(active_entries(study).sum())
+    return Study(
+        study.inputs.model,
+        study.inputs.y_init,
+        study.inputs.ydot_init,
+        study.ts,
+        parameters=study.parameters,
+        outputs=study.outputs,
+        n_samples=base_samples * rows_per_point(sampling, d),
+        key=jax.random.wrap_key_data(jnp.asarray(study.key_data)),
+        forces=study.inputs.forces,
+        sampling=sampling,
+        solver=study.options.solver,
+        rtol=study.rtol,
+        atol=study.atol,
+        max_steps=study.max_steps,
+        body_names=study.body_names,
+        connection_names=study.connection_names,
+    )
