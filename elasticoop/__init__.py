@@ -70,6 +70,7 @@ if typing.TYPE_CHECKING:
         initial_state_from_data as initial_state_from_data,
         savitzky_golay as savitzky_golay,
     )
+    from ._integrate import StepwiseAdjoint as StepwiseAdjoint
     from ._io.xarray import trajectory_to_xarray as trajectory_to_xarray
     from ._lagrange import (
         accelerations as accelerations,
@@ -132,7 +133,6 @@ if typing.TYPE_CHECKING:
         simulate as simulate,
     )
     from ._status import Status as Status
-    from ._integrate import StepwiseAdjoint as StepwiseAdjoint
     from ._trajectory import Trajectory as Trajectory
     from .montecarlo import (
         check_dgsm_bounds as check_dgsm_bounds,
