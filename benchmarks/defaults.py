@@ -7,17 +7,17 @@ Three measurements, each ratio from calls timed in turn in one process (best of
 `rounds` rounds), so that slow spells of a shared machine hit both sides alike:
 
 - `vmap`: the user code `jax.jit(jax.vmap(run))` with `run(stiffness)` =
-  `simulate(model with stiffness, ...).y` at `simulate`'s defaults, against a
-  loop of SciPy `solve_ivp` (DOP853, rtol 1e-8, atol 1e-10) over the NumPy
-  right-hand side of `benchmarks/reference.py`, timed on a few samples and
-  extrapolated to the batch. Problem: the 3-body `MobileModel` of
-  `benchmarks/montecarlo.py` (object + 2 grasps, 2 connections), 2 s, 21 output
-  times, constant lift, a batch of 1024 grasp stiffnesses (12 scalars, log-normal,
-  20 % scatter). Side by side: the same user code with the settings that were the
-  defaults before (`Tsit5` at rtol 1e-8, `vmap` of diffrax's loop). Accuracy: max
-  |Y - Y_ref| over the outputs of the nominal model, Y_ref by Dopri8 at rtol
-  1e-13, of the defaults and of SciPy's run (the target is the defaults' error no
-  larger than SciPy's).
+  `simulate(model with stiffness, ...).y` at `simulate`'s defaults, against a loop
+  of SciPy `solve_ivp` (DOP853, rtol 1e-8, atol 1e-10) over the NumPy right-hand
+  side of `benchmarks/reference.py`, timed on a few samples (in the same rounds as
+  the library's calls) and extrapolated to the batch. Problem: the 3-body
+  `MobileModel` of `benchmarks/montecarlo.py` (object + 2 grasps, 2 connections), 2
+  s, 21 output times, constant lift, a batch of 1024 grasp stiffnesses (12 scalars,
+  log-normal, 20 % scatter). Side by side: the same user code with the settings that
+  were the defaults before (`Tsit5` at rtol 1e-8, `vmap` of diffrax's loop).
+  Accuracy: max |Y - Y_ref| over the outputs of the nominal model, Y_ref by Dopri8
+  at rtol 1e-13, of the defaults and of SciPy's run (the target is the defaults'
+  error no larger than SciPy's).
 - `grad`: `jax.grad` of a trajectory loss (the sum of squared deviations of Y at
   the 301 output times of `default_scenario()`, 3 s, from a target 1 mm away) with
   respect to the 24 stiffness and damping parameters, at `simulate`'s defaults,
@@ -87,24 +87,25 @@ def vmap_throughput(batch: int, t_end: float, n_out: int, rounds: int, n_scipy: 
             (stiffness,),
         ),
     }
+
+    def scipy_loop():
+        """SciPy, one sample after the other, on the first `n_scipy` samples."""
+        for k in stiffness[:n_scipy]:
+            m = eqx.tree_at(lambda m: m.stiffness, model, k)
+            reference.solve_ivp_mobile(
+                m, np.asarray(y0), np.asarray(ydot0), np.asarray(ts), force=lift,
+                rtol=1e-8, atol=1e-10, method="DOP853",
+            )  # fmt: skip
+
     compile_s = {}
     for name, (fn, args) in calls.items():
         start = time.perf_counter()
         jax.block_until_ready(fn(*args))
         compile_s[name] = time.perf_counter() - start
+    # SciPy timed in the same rounds as the two (a loaded machine slows all alike)
+    calls["scipy"] = (scipy_loop, ())
     times = interleaved_best_times(calls, rounds)
-
-    # SciPy, one sample after the other, timed on the first `n_scipy`
-    spent = []
-    for s in range(n_scipy):
-        m = eqx.tree_at(lambda m: m.stiffness, model, stiffness[s])
-        start = time.perf_counter()
-        reference.solve_ivp_mobile(
-            m, np.asarray(y0), np.asarray(ydot0), np.asarray(ts), force=lift,
-            rtol=1e-8, atol=1e-10, method="DOP853",
-        )  # fmt: skip
-        spent.append(time.perf_counter() - start)
-    scipy_s = float(np.mean(spent)) * batch
+    scipy_s = times["scipy"] * batch / n_scipy
 
     # accuracy on the nominal model
     ref = eo.simulate(
