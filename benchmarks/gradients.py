@@ -8,13 +8,13 @@ for `default_scenario()` (3 s, 301 outputs; 0.1 s and the default adjoint and
 parameters
 (2 connections x 12 = 24). Forward:
 `simulate` + loss, jitted. Gradients: `jax.grad` with
-`RecursiveCheckpointAdjoint` (the default, `adjoint=None`: checkpoints chosen by
+`RecursiveCheckpointAdjoint` (diffrax's default: checkpoints chosen by
 diffrax from `max_steps`, 446 for 100 000; and `checkpoints=2048`, more than the
 run's steps, so that no step is recomputed twice), `jax.grad` with the library's
-`StepwiseAdjoint` (also at smoke size; with `max_steps=4096`, a few times the
-run's steps, all of which it keeps either way; and with `kept_steps=512`, which
-keeps the start states of the first 512 steps and of every 2nd or 4th after them,
-replaying the others), `jax.grad` with
+`StepwiseAdjoint` (`simulate`'s default; also at smoke size; with
+`max_steps=4096`, a few times the run's steps, all of which it keeps either way;
+and with `kept_steps=512`, which keeps the start states of the first 512 steps
+and of every 2nd or 4th after them, replaying the others), `jax.grad` with
 `BacksolveAdjoint`
 (if diffrax accepts it here), and `jax.jacfwd` with `ForwardMode` (24 tangents).
 Scratch memory: XLA's temporary buffers of each compiled gradient (the difference
@@ -48,6 +48,7 @@ the forward run, and what autodiff's costs there. (At smoke size only the stand-
 that evaluates the field.)
 """
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -81,11 +82,20 @@ def max_rel_diff(g, base) -> float:
     return float(np.max(np.abs(g - base)) / np.max(np.abs(base)))
 
 
+# The settings of this benchmark's runs: Tsit5 at rtol 1e-8 (the decomposition
+# below counts its 6 stages). `benchmarks/defaults.py` measures `simulate`'s
+# default settings.
+OPTIONS = eo.SimulationOptions("tsit5", 1e-8, 1e-10)
+
+
 def target_trajectory(scenario):
     """What the losses measure deviations from: the scenario's positions, all
     shifted by 1 mm (a target the parameters do not reach)."""
     s = scenario
-    return eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces).y + 1e-3
+    traj = eo.simulate(
+        s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces, options=OPTIONS
+    )
+    return traj.y + 1e-3
 
 
 def make_loss(scenario, adjoint, max_steps: int = 100_000):
@@ -100,7 +110,7 @@ def make_loss(scenario, adjoint, max_steps: int = 100_000):
             s.ts,
             forces=s.forces,
             adjoint=adjoint,
-            max_steps=max_steps,
+            options=dataclasses.replace(OPTIONS, max_steps=max_steps),
             throw=False,
         )
         return jnp.sum((traj.y - target) ** 2)
@@ -339,16 +349,18 @@ def bare_solve_losses(scenario, field):
 
 
 def batched(scenario, width: int, rounds: int) -> dict:
-    """Forward run and default reverse-mode gradient `vmap`-ped over `width`
+    """Forward run and reverse-mode gradient (the default adjoint, stepwise, and
+    `RecursiveCheckpointAdjoint`) `vmap`-ped over `width`
     parameter sets (the scenario's, then stiffness and damping scaled by 1.00 to
     1.05, fixed seed): time per sample and their ratio, best of `rounds` rounds.
     Also returns the first sample's gradient (the scenario's own parameters), to
     cross-check."""
-    loss = make_loss(scenario, None)
+    loss = make_loss(scenario, diffrax.RecursiveCheckpointAdjoint())
     scale = 1 + 0.05 * jax.random.uniform(jax.random.key(0), (width, 1, 1))
     scale = scale.at[0].set(1.0)
     sets = tuple(p[None] * scale for p in parameters(scenario.model))
-    forward = jax.jit(jax.vmap(loss))
+    # (the forward run as `vmap(simulate)` runs it by default: the batch loop)
+    forward = jax.jit(jax.vmap(make_loss(scenario, None)))
     gradient = jax.jit(jax.vmap(jax.grad(loss)))
     stepwise = jax.jit(jax.vmap(jax.grad(make_loss(scenario, eo.StepwiseAdjoint()))))
     times = interleaved_best_times(
@@ -385,7 +397,11 @@ def run(quick: bool = False) -> dict:
     forward = jax.jit(make_loss(s, diffrax.RecursiveCheckpointAdjoint()))
     # name: (transform, adjoint, max_steps)
     variants = {
-        "reverse_RecursiveCheckpointAdjoint": (jax.grad, None, 100_000),
+        "reverse_RecursiveCheckpointAdjoint": (
+            jax.grad,
+            diffrax.RecursiveCheckpointAdjoint(),
+            100_000,
+        ),
         "reverse_RecursiveCheckpointAdjoint_2048": (
             jax.grad,
             diffrax.RecursiveCheckpointAdjoint(checkpoints=2048),
@@ -435,7 +451,9 @@ def run(quick: bool = False) -> dict:
             }
         )
     # The decomposition's loops, timed in the same rounds as the forward run.
-    traj = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces)
+    traj = eo.simulate(
+        s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces, options=OPTIONS
+    )
     n_evals = 200 if quick else 20_000
     calls.update(per_evaluation(s, traj, n_evals))
     calls["stepwise_backward"], accepted = stepwise_backward(s)

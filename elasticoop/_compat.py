@@ -1,5 +1,14 @@
 """The places where elasticoop relies on private details of its dependencies.
 
+diffrax (read in 0.7.0 to 0.7.2; `SUPPORTED_DIFFRAX`, and pyproject.toml's bound):
+the dense output of its explicit Runge-Kutta solvers is built by the solver's
+`interpolation_cls(t0=, t1=, y0=, y1=, k=)` from the stage increments that its
+`step` returns as `dense_info["k"]` (`dense_interpolation`, `dense_stages`), and
+`diffeqsolve` wraps every term before its step-size controller's `init` sees it,
+which changes the first step the controller picks (`wrapped_term`). The engine's
+tests (`tests/test_batch_loop.py`, `tests/test_stepwise_adjoint.py`) compare what
+relies on these with diffrax's own loop and adjoint.
+
 equinox's runtime checks (`equinox.error_if`, which diffrax, optimistix and lineax
 use inside compiled code) compile to host callbacks in equinox's default mode,
 `"raise"`, and JAX never stores an executable that contains a host callback in its
@@ -23,14 +32,20 @@ everywhere and the library's programs would compile as plain `eqx.filter_jit`
 
 import contextlib
 import re
+from typing import Any
 
+import diffrax
 import equinox
 import jax
 import jax.extend.core
+import jax.numpy as jnp
 
 # The equinox versions this module supports: from the first up to, excluding, the
 # second.
 SUPPORTED_EQUINOX = ((0, 11, 10), (0, 14, 0))
+# The diffrax versions whose private details below were read: from the first up to,
+# excluding, the second (pyproject.toml bounds the dependency the same).
+SUPPORTED_DIFFRAX = ((0, 7, 0), (0, 8, 0))
 
 MODES = ("raise", "nan", "off")
 
@@ -104,3 +119,66 @@ def outside_transformations() -> bool:
     """True when no JAX transformation (`jit`, `vmap`, `grad`, ...) is tracing the
     caller: a program compiled from here is the outermost one."""
     return type(jax.extend.core.find_top_trace(())).__name__ == "EvalTrace"
+
+
+def check_diffrax_version(version: str | None = None) -> None:
+    """Raise `RuntimeError` unless `version` (default: the installed diffrax's) is
+    within `SUPPORTED_DIFFRAX`."""
+    version = diffrax.__version__ if version is None else version
+    first, end = SUPPORTED_DIFFRAX
+    if not first <= _version(version) < end:
+        supported = f">={'.'.join(map(str, first))},<{'.'.join(map(str, end))}"
+        raise RuntimeError(
+            f"elasticoop's engine supports diffrax{supported}, but diffrax {version} "
+            f"is installed: install a supported version (pip install "
+            f"'diffrax{supported}')"
+        )
+
+
+def dense_interpolation(
+    solver: diffrax.AbstractSolver, t0: Any, t1: Any, y0: Any, y1: Any, k: Any
+) -> diffrax.AbstractLocalInterpolation:
+    """The dense output of one step of an explicit Runge-Kutta `solver` from `t0`
+    to `t1`, from its ends `y0`, `y1` and stage increments `k`."""
+    return solver.interpolation_cls(  # type: ignore[attr-defined]
+        t0=t0, t1=t1, y0=y0, y1=y1, k=k
+    )
+
+
+def dense_stages(solver: Any) -> int | None:
+    """How many stage increments the solver's dense output holds (its `k`), or
+    `None` if its dense output is not built from them."""
+    term = diffrax.ODETerm(lambda t, y, args: -y)
+    y0 = jnp.zeros(1)
+
+    def step():
+        state = solver.init(term, 0.0, 1.0, y0, None)
+        return solver.step(term, 0.0, 1.0, y0, None, state, False)[2]
+
+    try:
+        dense = jax.eval_shape(step)
+    except Exception:  # not a solver of this kind
+        return None
+    k = dense.get("k") if isinstance(dense, dict) else None
+    return None if k is None else int(k.shape[0])
+
+
+class _Wrapped(diffrax.AbstractTerm):
+    term: diffrax.AbstractTerm
+
+    def vf(self, t, y, args):
+        return self.term.vf(t, y, args)
+
+    def contr(self, t0, t1, **kwargs):
+        return self.term.contr(t0, t1, **kwargs)
+
+    def prod(self, vf, control):
+        return self.term.prod(vf, control)
+
+
+def wrapped_term(term: diffrax.AbstractTerm) -> diffrax.AbstractTerm:
+    """`term` as `diffrax.diffeqsolve` hands it to the step-size controller's
+    `init`: wrapped (diffrax wraps every term in its time direction), so that the
+    controller picks the same first step as there (diffrax 0.7 estimates one for an
+    `ODETerm` only, and tries 0.01 for any other term)."""
+    return _Wrapped(term)

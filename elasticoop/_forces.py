@@ -371,7 +371,7 @@ class PoseTracking(AbstractForce):
             )
 
     def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
-        lift = jnp.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+        lift = jnp.array([[0.0, 0.0, 1.0, 0.0, 0.0, 0.0]])  # (one row, for every grasp)
         s, rate = jax.jvp(
             lambda t: minimum_jerk((t - self.start) / self.duration),
             (t,),
@@ -381,7 +381,9 @@ class PoseTracking(AbstractForce):
         ref_rate = self.height * rate * lift
         grasps, rates = y[1:], ydot[1:]
         return (
-            self.feedforward + self.kp * (ref - grasps) + self.kd * (ref_rate - rates)
+            self.feedforward
+            + self.kp[None] * (ref - grasps)
+            + self.kd[None] * (ref_rate - rates)
         )
 
 

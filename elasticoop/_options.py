@@ -1,8 +1,11 @@
 """`SimulationOptions`: how a run is integrated (solver, tolerances, step budget and
 the thresholds of the two singularities), checked once for every caller."""
 
+import dataclasses
 import math
 import numbers
+import warnings
+from typing import Any
 
 import diffrax
 import equinox as eqx
@@ -17,6 +20,11 @@ SOLVERS = {
     "kvaerno3": diffrax.Kvaerno3,
     "kvaerno5": diffrax.Kvaerno5,
 }
+
+# The default solver and tolerances (`SimulationOptions`).
+DEFAULT_SOLVER = "dopri8"
+DEFAULT_RTOL = 1e-9
+DEFAULT_ATOL = 1e-11
 
 # Documented thresholds of the two singularities a run stops at.
 GIMBAL_TOL = 1e-3  # |sin theta| (ZXZ) or |cos pitch| (RPY)
@@ -63,10 +71,16 @@ class SimulationOptions(eqx.Module):
 
     **Fields:**
 
-    - `solver`: a diffrax solver, or its name in `SOLVERS` (`"tsit5"`, the default,
-      `"dopri5"`, `"dopri8"`, `"bosh3"`, `"heun"`, `"kvaerno3"`, `"kvaerno5"`).
+    - `solver`: a diffrax solver, or its name in `SOLVERS` (`"tsit5"`, `"dopri5"`,
+      `"dopri8"`, the default, `"bosh3"`, `"heun"`, `"kvaerno3"`, `"kvaerno5"`).
     - `rtol`, `atol`: tolerances of the adaptive step-size controller (> 0;
-      `rtol` < 1).
+      `rtol` < 1; default 1e-9 and 1e-11).
+
+    The default solver and tolerances are those of the least work at the accuracy
+    of SciPy's `solve_ivp` (DOP853, rtol 1e-8, atol 1e-10) on the three-body lift
+    (`benchmarks/work_precision.py`, `benchmarks/montecarlo.py`: Dopri8 at rtol
+    1e-8 is less accurate than that, at 1e-9 more; Tsit5 needs more steps for the
+    same error).
     - `max_steps`: the most solver steps a run may take, an integer from 1 to
       `MAX_STEPS_LIMIT` ($2^{31} - 1$).
     - `gimbal_tol`: a run stops when a body's $|\\sin\\theta|$ (ZXZ) or
@@ -76,9 +90,11 @@ class SimulationOptions(eqx.Module):
     - `owner`: the name used in error messages (`"simulate"`, `"Study"`, ...).
     """
 
-    solver: diffrax.AbstractSolver | str = eqx.field(static=True, default="tsit5")
-    rtol: float = eqx.field(static=True, default=1e-8)
-    atol: float = eqx.field(static=True, default=1e-10)
+    solver: diffrax.AbstractSolver | str = eqx.field(
+        static=True, default=DEFAULT_SOLVER
+    )
+    rtol: float = eqx.field(static=True, default=DEFAULT_RTOL)
+    atol: float = eqx.field(static=True, default=DEFAULT_ATOL)
     max_steps: int = eqx.field(static=True, default=100_000)
     gimbal_tol: float = eqx.field(static=True, default=GIMBAL_TOL)
     link_tol: float = eqx.field(static=True, default=LINK_TOL)
@@ -134,13 +150,37 @@ class SimulationOptions(eqx.Module):
             return SOLVERS[self.solver]()
         return self.solver
 
-    def kwargs(self) -> dict:
-        """The keyword arguments of `simulate` these options stand for."""
-        return dict(
-            solver=self.diffrax_solver(),
-            rtol=float(self.rtol),
-            atol=float(self.atol),
-            max_steps=int(self.max_steps),
-            gimbal_tol=float(self.gimbal_tol),
-            link_tol=float(self.link_tol),
+    def kwargs(self) -> dict[str, Any]:
+        """The keyword arguments of `simulate` these options stand for
+        (`{"options": self}`)."""
+        return dict(options=self)
+
+
+# The fields of `SimulationOptions` that `simulate` and `Scenario` also took one by
+# one (deprecated spellings).
+OPTION_FIELDS = ("solver", "rtol", "atol", "max_steps", "gimbal_tol", "link_tol")
+
+
+def resolve_options(options: Any, owner: str, **fields: Any) -> SimulationOptions:
+    """`options` (a `SimulationOptions`, checked here; default
+    `SimulationOptions()`), with the fields given one by one
+    in `fields` (those not `None`) in their place, each with a
+    `DeprecationWarning`: the deprecated spellings of `simulate(..., rtol=...)`."""
+    if options is not None and not isinstance(options, SimulationOptions):
+        raise ValueError(
+            f"{owner}.options must be a SimulationOptions, got {type(options).__name__}"
         )
+    given = {name: value for name, value in fields.items() if value is not None}
+    if given:
+        shown = ", ".join(f"{name}={value!r}" for name, value in given.items())
+        warnings.warn(
+            f"{owner}({', '.join(given)}=...) is deprecated: pass "
+            f"options=SimulationOptions({shown})",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+    if options is None:
+        return SimulationOptions(**given, owner=owner)
+    if not given:
+        return options
+    return dataclasses.replace(options, **given)

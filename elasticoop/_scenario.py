@@ -8,12 +8,12 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._custom_types import State, Times
+from ._custom_types import State, Times, Validated
 from ._forces import AbstractForce
 from ._models import AbstractElasticModel
 from ._motion import PrescribedMotion, SplineMotion
 from ._naming import default_body_names
-from ._options import SimulationOptions
+from ._options import SimulationOptions, resolve_options
 from ._simulate import simulate
 from ._trajectory import Trajectory
 
@@ -78,10 +78,13 @@ class IdentifySpec:
 
 class Scenario(eqx.Module):
     """A complete simulation set-up: model, initial state, output times, forces,
-    solver settings and the names of bodies and connections.
+    solver settings (`options`, a `SimulationOptions`) and the names of bodies and
+    connections.
 
     `scenario.simulate()` runs it; `elasticoop.load_scenario(path)` reads one from a
-    TOML scenario file.
+    TOML scenario file. `solver`, `rtol`, `atol` and `max_steps` read the fields of
+    `options`; passed to the constructor they are deprecated spellings of
+    `options=SimulationOptions(...)` (a `DeprecationWarning`).
     """
 
     name: str = eqx.field(static=True)
@@ -90,29 +93,87 @@ class Scenario(eqx.Module):
     ydot_init: State
     ts: Times
     forces: AbstractForce | None
-    body_names: tuple[str, ...] = eqx.field(static=True, default=())
-    connection_names: tuple[str, ...] = eqx.field(static=True, default=())
-    solver: str = eqx.field(static=True, default="tsit5")
-    rtol: float = eqx.field(static=True, default=1e-8)
-    atol: float = eqx.field(static=True, default=1e-10)
-    max_steps: int = eqx.field(static=True, default=100_000)
-    prescribed: PrescribedSpec | None = None
-    description: str = eqx.field(static=True, default="")
-    source: str | None = eqx.field(static=True, default=None)
-    identify: IdentifySpec | None = eqx.field(static=True, default=None)
+    body_names: tuple[str, ...] = eqx.field(static=True)
+    connection_names: tuple[str, ...] = eqx.field(static=True)
+    options: SimulationOptions = eqx.field(static=True)
+    prescribed: PrescribedSpec | None
+    description: str = eqx.field(static=True)
+    source: str | None = eqx.field(static=True)
+    identify: IdentifySpec | None = eqx.field(static=True)
     # `[initial] from` ("equilibrium": the run starts at rest in the static
     # equilibrium of the model); None: the initial state as given
-    initial_from: str | None = eqx.field(static=True, default=None)
+    initial_from: str | None = eqx.field(static=True)
 
-    def __check_init__(self):
-        self.options  # validates solver, rtol, atol and max_steps
+    def __init__(
+        self,
+        name: str,
+        model: AbstractElasticModel,
+        y_init: State,
+        ydot_init: State,
+        ts: Times,
+        forces: AbstractForce | None,
+        body_names: tuple[str, ...] = (),
+        connection_names: tuple[str, ...] = (),
+        solver: str | None = None,
+        rtol: float | None = None,
+        atol: float | None = None,
+        max_steps: int | None = None,
+        prescribed: PrescribedSpec | None = None,
+        description: str = "",
+        source: str | None = None,
+        identify: IdentifySpec | None = None,
+        initial_from: str | None = None,
+        *,
+        options: Validated[SimulationOptions | None] = None,
+    ):
+        self.name = name
+        self.model = model
+        self.y_init = y_init
+        self.ydot_init = ydot_init
+        self.ts = ts
+        self.forces = forces
+        self.body_names = body_names
+        self.connection_names = connection_names
+        if options is not None and not isinstance(options, SimulationOptions):
+            raise ValueError(
+                f"Scenario.options must be a SimulationOptions, got "
+                f"{type(options).__name__}"
+            )
+        if options is None:
+            options = SimulationOptions(owner="Scenario")
+        self.options = resolve_options(
+            options,
+            "Scenario",
+            solver=solver,
+            rtol=rtol,
+            atol=atol,
+            max_steps=max_steps,
+        )
+        self.prescribed = prescribed
+        self.description = description
+        self.source = source
+        self.identify = identify
+        self.initial_from = initial_from
 
     @property
-    def options(self) -> SimulationOptions:
-        """The solver settings as `SimulationOptions`."""
-        return SimulationOptions(
-            self.solver, self.rtol, self.atol, self.max_steps, owner="Scenario"
-        )
+    def solver(self) -> str:
+        """The solver's name (`options.solver_name`)."""
+        return self.options.solver_name
+
+    @property
+    def rtol(self) -> float:
+        """`options.rtol`."""
+        return float(self.options.rtol)
+
+    @property
+    def atol(self) -> float:
+        """`options.atol`."""
+        return float(self.options.atol)
+
+    @property
+    def max_steps(self) -> int:
+        """`options.max_steps`."""
+        return int(self.options.max_steps)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -121,9 +182,9 @@ class Scenario(eqx.Module):
 
     def simulate(self, **overrides: Any) -> Trajectory:
         """Run `elasticoop.simulate` with this scenario's model, initial state,
-        times, forces, solver and tolerances; keyword arguments override them
+        times, forces and `options`; keyword arguments override them
         (e.g. `progress_meter=diffrax.TqdmProgressMeter()` where supported)."""
-        kwargs = dict(forces=self.forces, **self.options.kwargs())
+        kwargs: dict[str, Any] = dict(forces=self.forces, options=self.options)
         if self.prescribed is not None:
             kwargs["prescribed"] = self.prescribed.motion(self.ts)
         kwargs.update(overrides)

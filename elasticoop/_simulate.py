@@ -32,15 +32,16 @@ from ._integrate import (
     MIN_STEP_ULPS,
     StepwiseAdjoint,
     StopFailedSteps,
+    default_adjoint,
+    default_lanes,
     integrate,
     locate_event,
-    result_code,
     rms_norm,
 )
 from ._lagrange import accelerations, constrained_accelerations
 from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
-from ._options import GIMBAL_TOL, LINK_TOL, SimulationOptions, check_initial_step
+from ._options import SimulationOptions, check_initial_step, resolve_options
 from ._status import Status, status_message
 from ._trajectory import Trajectory
 from ._validation import as_float_array, check_times, is_concrete, xp
@@ -48,7 +49,7 @@ from ._validation import as_float_array, check_times, is_concrete, xp
 # The state diffrax integrates: Y, its rate, the work done by the applied forces and
 # the energy dissipated, packed into one vector `(12 bodies + 2,)` (`_pack`): the
 # solver's stage sums, error norm and outputs then act on one array instead of four,
-# which halves the cost of a step of one trajectory of the default scenario.
+# which makes a step of one trajectory cheaper.
 _ODEState = Float[Array, " state"]
 # `args` of the vector field: model, force, the sign of each body's regularity at the
 # start, the prescribed motion, and the end of the run.
@@ -78,19 +79,20 @@ def simulate(
     ydot_init: ArrayInput,
     ts: ArrayInput,
     forces: AbstractForce | Callable[..., ArrayInput] | ArrayInput | None = None,
-    solver: diffrax.AbstractSolver | None = None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 100_000,
+    solver: diffrax.AbstractSolver | str | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    max_steps: int | None = None,
     *,
+    options: Validated[SimulationOptions | None] = None,
     dt0: float | None = None,
     adjoint: diffrax.AbstractAdjoint | StepwiseAdjoint | None = None,
     throw: bool | None = None,
-    gimbal_tol: float = GIMBAL_TOL,
-    link_tol: float = LINK_TOL,
+    gimbal_tol: float | None = None,
+    link_tol: float | None = None,
     prescribed: Validated[PrescribedMotion | None] = None,
     progress_meter: diffrax.AbstractProgressMeter | None = None,
-    batch_loop: bool | int = False,
+    batch_loop: bool | int | None = None,
 ) -> Trajectory:
     """Integrate $W(Y)\\ddot Y + w(Y, \\dot Y) = G + F$ from `ts[0]` to `ts[-1]`.
 
@@ -102,42 +104,48 @@ def simulate(
     - `forces`: `None`, an array `(m, 6)` (constant), a `ConstantForce`,
       `SampledForce`, or a callable `f(t, y, ydot) -> (m, 6)`. A leading row for the
       object, shape `(m + 1, 6)`, adds a disturbance on it.
-    - `solver`: any diffrax solver (default `diffrax.Tsit5()`; explicit solvers such
-      as `diffrax.Dopri8()` stay faster than implicit ones even for stiff grasps).
-    - `rtol`, `atol`: tolerances of the adaptive step-size controller.
-    - `max_steps`: the most steps the solver may take.
+    - `options`: a `SimulationOptions`, the solver and its settings (default
+      `SimulationOptions()`: `Dopri8` at rtol 1e-9, atol 1e-11, at most 100 000
+      steps, and the thresholds `gimbal_tol`, `link_tol` of the two
+      singularities).
+    - `solver`, `rtol`, `atol`, `max_steps`, `gimbal_tol`, `link_tol`: deprecated
+      spellings of the fields of `options` (a `DeprecationWarning`); given, each
+      replaces that field of `options`.
     - `dt0`: initial step, a positive number (default: chosen by diffrax).
-    - `adjoint`: how reverse-mode gradients are taken: a diffrax adjoint (default
-      `diffrax.RecursiveCheckpointAdjoint()`), or `StepwiseAdjoint()`, the
-      quicker discrete adjoint over the accepted steps (explicit Runge-Kutta
-      solvers; see its docstring).
+    - `adjoint`: how reverse-mode gradients are taken. The default (`None`):
+      `StepwiseAdjoint()`, the discrete adjoint over the accepted steps, for the
+      explicit Runge-Kutta solvers it supports (a gradient with respect to what it
+      does not differentiate, such as the output times, is taken by diffrax's
+      `RecursiveCheckpointAdjoint` instead), and
+      `diffrax.RecursiveCheckpointAdjoint()` for other solvers. Or any diffrax
+      adjoint: forward mode (`jax.jvp`, `jax.jacfwd`) needs
+      `diffrax.ForwardMode()`.
     - `throw`: `None` (default) raises `SimulationError` for an early stop when the
       result is concrete, and reports it in `Trajectory.status` under `jit`/`vmap`/
       `grad` (each element of a batch on its own); `True` raises in both cases
       (also with the compilation cache on); `False` never raises.
-    - `gimbal_tol`: the run stops when a body's $|\\sin\\theta|$ (ZXZ) or
-      $|\\cos(\\text{pitch})|$ (RPY) falls below this.
-    - `link_tol`: the run stops when a link with rest length $\\rho_0 > 0$ shrinks to
-      $|r_i - r_j| <$ `link_tol` $\\rho_0$ (`MobileModel`; a link with $\\rho_0 = 0$
-      is smooth through $r_i = r_j$ and never stops a run).
     - `prescribed`: a `PrescribedMotion`: the coordinates in its mask follow its
       motion (their entries of `y_init`, `ydot_init` are taken from it) and only the
       others are integrated; `Trajectory.reaction` then holds the generalized forces
       that realise the prescribed motion, and `Trajectory.work` includes their work.
     - `progress_meter`: a diffrax progress meter, e.g.
       `diffrax.TqdmProgressMeter()` for a progress bar on a long run (default none).
-    - `batch_loop`: under `jax.vmap`, integrate the whole batch in one loop, each
-      element with its own steps, instead of `vmap`-ing diffrax's loop: faster
-      (about 2x per trajectory in `benchmarks/loop.py`), the same steps, each equal
-      to diffrax's to rounding (results within the solver's tolerance of it), but not
-      differentiable (forward or reverse). Explicit Runge-Kutta
-      solvers without a progress meter; otherwise ignored. `run_study` uses it.
-      An integer $n \\geq 1$ is the same loop over at most $n$ elements at once:
-      when one stops, the next one still waiting starts in its place, so that a
-      batch much wider than $n$ never waits for its slowest elements with most of
-      its places idle (`run_study` runs each chunk so, with $n$ = `batch_width`).
-      Each element's results do not depend on $n$ and equal those of
-      `batch_loop=True` to rounding.
+    - `batch_loop`: how a `jax.vmap`-ed batch is integrated. The default (`None`)
+      is the batch loop in lanes where the solve's derivatives are the default
+      adjoint's (or `StepwiseAdjoint`'s), else `False`. The batch loop integrates
+      the whole batch in one loop, each element with its own steps, instead of
+      `vmap`-ing diffrax's loop: faster (`benchmarks/loop.py`), the same steps,
+      each equal to diffrax's to rounding (results within the solver's tolerance
+      of it). An integer $n \\geq 1$: at most $n$ elements at once (lanes); when
+      one stops, the next one still waiting starts in its place, so that a batch
+      much wider than $n$ never waits for its slowest elements with most of its
+      places idle. The default takes `default_lanes()` lanes (128 on a CPU, the
+      whole batch on an accelerator). `True`: the whole batch at once; `False`:
+      `vmap` of diffrax's loop. Each element's results do not depend on $n$ and
+      equal those of `batch_loop=True` to rounding. Explicit Runge-Kutta solvers
+      without a progress meter; otherwise ignored. With a diffrax adjoint the
+      batch loop is not differentiable (forward or reverse); with the stepwise
+      adjoint it is in reverse mode.
 
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces (`event_time`, where a run stopped
@@ -154,20 +162,29 @@ def simulate(
         raise ValueError(
             f"model must be an ImmobileModel or MobileModel, got {type(model).__name__}"
         )
-    if not isinstance(batch_loop, bool) and (
-        not isinstance(batch_loop, numbers.Integral) or batch_loop < 1
+    if batch_loop is not None and (
+        not isinstance(batch_loop, bool)
+        and (not isinstance(batch_loop, numbers.Integral) or batch_loop < 1)
     ):
         raise ValueError(
             f"batch_loop must be True, False or a positive integer, got {batch_loop!r}"
         )
-    options = SimulationOptions(
-        "tsit5" if solver is None else solver,
-        rtol,
-        atol,
-        max_steps,
-        gimbal_tol,
-        link_tol,
+    options = resolve_options(
+        options,
+        "simulate",
+        solver=solver,
+        rtol=rtol,
+        atol=atol,
+        max_steps=max_steps,
+        gimbal_tol=gimbal_tol,
+        link_tol=link_tol,
     )
+    diffrax_solver = options.diffrax_solver()
+    fallback = False
+    if adjoint is None:
+        adjoint, fallback = default_adjoint(diffrax_solver)
+    if batch_loop is None:
+        batch_loop = default_lanes() if isinstance(adjoint, StepwiseAdjoint) else False
     if is_concrete(dt0):
         check_initial_step(dt0, "simulate")
     if is_concrete(model) and not bool(model.admissible()):
@@ -204,24 +221,24 @@ def simulate(
         ):
             _check_links_open(model, y_init, options.link_tol)
 
-    kw = options.kwargs()
     traj = _solve(
         model,
         y_init,
         ydot_init,
         ts,
         force,
-        kw["solver"],
-        kw["rtol"],
-        kw["atol"],
-        kw["max_steps"],
+        diffrax_solver,
+        float(options.rtol),
+        float(options.atol),
+        int(options.max_steps),
         dt0,
-        diffrax.RecursiveCheckpointAdjoint() if adjoint is None else adjoint,
-        kw["gimbal_tol"],
-        kw["link_tol"],
+        adjoint,
+        float(options.gimbal_tol),
+        float(options.link_tol),
         prescribed,
         diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
         batch_loop,
+        fallback,
     )
     if throw is False:
         return traj
@@ -274,7 +291,7 @@ def _unpack(x: Float[Array, "*times state"]) -> tuple[Array, Array, Array, Array
 # Jitted on its own: the solver's step is traced several times over (the forward
 # loop, the checkpointed backward pass, linearization and transposition), and JAX
 # traces a jitted function once per signature and caches its transformations. This
-# takes about a third off tracing a reverse-mode gradient; the compiled program is
+# shortens tracing a reverse-mode gradient; the compiled program is
 # the same (XLA inlines the call).
 @eqx.filter_jit
 def _vector_field(t: TimeLike, state: _ODEState, args: _Args) -> _ODEState:
@@ -308,7 +325,9 @@ def _driven(
     return y, ydot, yddot, damping, reaction, applied
 
 
-def _of_state(condition: Callable, t: TimeLike, state: _ODEState, args: _Args):
+def _of_state(
+    condition: Callable, t: TimeLike, state: _ODEState, args: _Args
+) -> Scalar:
     """A stop condition of $Y$ as a condition of the ODE state."""
     return condition(t, _unpack(state)[0], args)
 
@@ -367,6 +386,7 @@ def _solve(
     prescribed: PrescribedMotion | None,
     progress_meter: diffrax.AbstractProgressMeter,
     batch_loop: bool | int = False,
+    fallback: bool = False,
 ) -> Trajectory:
     # Starts that are not simulated (only possible when traced; concrete ones are
     # refused by `simulate`): NaN or inf in the initial state, a start at the
@@ -414,7 +434,9 @@ def _solve(
         # The run stops where the samples end, if that is before ts[-1] (like the
         # others, this event fires where its value falls to zero from above).
         def samples_end(t, y, args):
-            end = sampled_interval(args[1])[1]
+            samples = sampled_interval(args[1])
+            assert samples is not None  # (the force of `interval`)
+            end = samples[1]
             return jnp.where(args[4] <= end, 1.0, end - t)
 
         cond_fns["samples_end"] = samples_end
@@ -442,6 +464,7 @@ def _solve(
         adjoint=adjoint,
         progress_meter=progress_meter,
         batch_loop=batch_loop,
+        fallback=fallback,
     )
     y_all, ydot_all, work, dissipated = _unpack(sol.ys)
     reaction = None
@@ -462,13 +485,13 @@ def _solve(
     ydot_end = ydot_all[last]
     record = sol.controller_state
 
-    event_hit = sol.result == result_code(diffrax.RESULTS.event_occurred)
+    event_hit = sol.result == diffrax.RESULTS.event_occurred
     hits = {
         name: event_hit & mask
         for name, mask in zip(cond_fns, sol.event_mask, strict=True)
     }
     no_hit = jnp.array(False)
-    step_failed = sol.result == result_code(diffrax.RESULTS.dt_min_reached)
+    step_failed = sol.result == diffrax.RESULTS.dt_min_reached
 
     # Where an event ended the run, diffrax stopped at the end of the step in which
     # its condition changed sign: the run ends at the crossing inside that step
@@ -507,9 +530,9 @@ def _solve(
             hits["gimbal"],
             hits.get("collapse", no_hit),
             hits.get("samples_end", no_hit),
-            sol.result == result_code(diffrax.RESULTS.max_steps_reached),
+            sol.result == diffrax.RESULTS.max_steps_reached,
             step_failed & record.nonfinite,
-            ~(event_hit | (sol.result == result_code(diffrax.RESULTS.successful))),
+            ~(event_hit | (sol.result == diffrax.RESULTS.successful)),
         ],
         [
             Status.NONFINITE,

@@ -141,3 +141,48 @@ def test_deferred_names_resolve(package):
         assert name in dir(module)
     with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
         module.not_a_name  # noqa: B018
+
+
+def _documented_layers() -> list[str]:
+    """The layer list of docs/architecture.md (between its layer markers)."""
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    block = text.split("<!-- layers -->")[1].split("<!-- /layers -->")[0]
+    lines = [line.strip() for line in block.strip().splitlines()]
+    return [line for line in lines if line and not line.startswith("```")]
+
+
+def test_architecture_page_lists_the_contracts_layers():
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    contracts = config["tool"]["importlinter"]["contracts"]
+    layers = next(c for c in contracts if c.get("containers") == ["elasticoop"])
+    assert _documented_layers() == layers["layers"]
+
+
+def test_engine_imports_no_physics(graph):
+    """The engine (`elasticoop._integrate`) knows diffrax and no bodies: nothing of
+    it imports a module of the physics or of `simulate`."""
+    engine = {m for m in graph.modules if m.startswith("elasticoop._integrate")}
+    physics = (
+        "_simulate _trajectory _status _lagrange _models _forces _motion _body "
+        "_mass_blocks _rotations"
+    ).split()
+    for module in engine:
+        for imported in graph.find_modules_directly_imported_by(module):
+            parts = imported.split(".")
+            assert len(parts) < 2 or parts[1] not in physics, (module, imported)
+
+
+def test_diffrax_within_the_supported_window():
+    """The installed diffrax is one whose private details `_compat` was read in,
+    and pyproject.toml bounds the dependency to the same window."""
+    from elasticoop import _compat
+
+    _compat.check_diffrax_version()
+    with pytest.raises(RuntimeError, match="supports diffrax>=0.7.0,<0.8.0"):
+        _compat.check_diffrax_version("0.8.0")
+    first, end = _compat.SUPPORTED_DIFFRAX
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    (spec,) = [d for d in config["project"]["dependencies"] if d.startswith("diffrax")]
+    low = ".".join(map(str, first[:2]))
+    high = ".".join(map(str, end[:2]))
+    assert spec == f"diffrax>={low},<{high}"

@@ -12,7 +12,7 @@ step differs by rounding (`tests/test_batch_step.py` compares single steps to a 
 units in the last place). The step-size controller turns that into steps that
 differ by rounding too, and a run into states that differ by more than one step's
 rounding: up to about 5e-12 in these runs, within their tolerance (rtol 1e-8, atol
-1e-10 by default)."""
+1e-10 here)."""
 
 import diffrax
 import equinox as eqx
@@ -28,6 +28,10 @@ MODEL, Y0 = small_two_body_model()
 YDOT0 = jnp.zeros_like(Y0).at[1, 2].set(0.5)
 LIFT = jnp.array([[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]])
 UP = (0.0, np.pi / 2, 0.0)
+# The two-body runs' solver and tolerances: Tsit5 at rtol 1e-8, on which the
+# step counts of the batch below (and its `max_steps` between them) were chosen.
+SOLVER = "tsit5"
+TOLERANCES = dict(rtol=1e-8, atol=1e-10)
 
 
 def _both(run, *batched):
@@ -39,7 +43,7 @@ def _both(run, *batched):
 
 def _assert_same(plain: eo.Trajectory, loop: eo.Trajectory, rtol=1e-8, atol=1e-10):
     """The same steps, statuses and events; the same states, energies, reactions
-    and event times to the run's tolerance (`rtol`, `atol`: simulate's defaults)."""
+    and event times to the run's tolerance (`rtol`, `atol`: `TOLERANCES`)."""
     for name in ("status", "event_index", "n_steps"):
         np.testing.assert_array_equal(
             getattr(loop, name), getattr(plain, name), err_msg=name
@@ -74,7 +78,7 @@ def _two_body(stiffness, force, y_init, max_steps=200, **options):
         YDOT0,
         SMALL_TS,
         forces=force,
-        max_steps=max_steps,
+        options=eo.SimulationOptions(SOLVER, **TOLERANCES, max_steps=max_steps),
         throw=False,
         **options,
     )
@@ -122,14 +126,21 @@ def test_batch_loop_takes_a_bool_or_a_positive_integer(lanes):
         _two_body(MODEL.stiffness, LIFT, Y0, batch_loop=lanes)
 
 
-def test_outside_vmap_it_is_the_plain_run_and_not_differentiable():
-    def final_height(stiffness, batch_loop):
-        traj = _two_body(MODEL.stiffness * stiffness, LIFT, Y0, batch_loop=batch_loop)
+def test_outside_vmap_it_is_the_plain_run_differentiable_with_the_default_adjoint():
+    def final_height(stiffness, batch_loop, **options):
+        traj = _two_body(
+            MODEL.stiffness * stiffness, LIFT, Y0, batch_loop=batch_loop, **options
+        )
         return traj.y[-1, 1, 2]
 
     assert float(final_height(1.0, True)) == float(final_height(1.0, False))
-    with pytest.raises(ValueError, match=r"batch_loop=True\) is not differentiable"):
-        jax.grad(final_height)(1.0, True)
+    # the default adjoint (stepwise) differentiates the batch loop's solve
+    assert float(jax.grad(final_height)(1.0, True)) == float(
+        jax.grad(final_height)(1.0, False)
+    )
+    # with a diffrax adjoint the batch loop is for forward runs only
+    with pytest.raises(ValueError, match=r"with a diffrax adjoint is not different"):
+        jax.grad(final_height)(1.0, True, adjoint=diffrax.RecursiveCheckpointAdjoint())
 
 
 @pytest.mark.slow

@@ -22,6 +22,8 @@ TOL = dict(rtol=1e-10, atol=1e-12)
 # The two adjoints take the same steps and the same products, in another order:
 # they differ by rounding (at most 5e-14 measured, Bosh3's many steps).
 RTOL = 1e-12
+# diffrax's adjoint, what the stepwise adjoint is compared with
+CHECKPOINTS = diffrax.RecursiveCheckpointAdjoint()
 
 
 def loss(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
@@ -39,12 +41,12 @@ def loss(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
         YDOT0,
         TS,
         forces=force,
-        solver=diffrax.Tsit5() if solver is None else solver,
+        options=eo.SimulationOptions(
+            diffrax.Tsit5() if solver is None else solver, max_steps=max_steps, **TOL
+        ),
         adjoint=adjoint,
         prescribed=prescribed,
-        max_steps=max_steps,
         throw=False,
-        **TOL,
     )
     weights = jnp.arange(1.0, 1.0 + TS.shape[0])[:, None, None]
     # (a run that stops early has NaN at the outputs it did not reach)
@@ -52,7 +54,7 @@ def loss(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
     y = jnp.where(reached, traj.y, 0.0)
     ydot = jnp.where(reached, traj.ydot, 0.0)
     return (
-        jnp.sum(weights * (y - Y0) ** 2)
+        jnp.sum(weights * (y - Y0[None]) ** 2)
         + jnp.sum(weights * ydot**2)
         + jnp.sum(jnp.where(reached[:, 0, 0], traj.work + traj.dissipated, 0.0))
     )
@@ -64,7 +66,7 @@ PARAMS = (MODEL.stiffness, MODEL.damping, MODEL.bodies.mass, Y0, LIFT)
 def gradients(**kwargs):
     """The gradients by both adjoints."""
     ours = jax.jit(jax.grad(lambda p: loss(p, eo.StepwiseAdjoint(), **kwargs)))
-    theirs = jax.jit(jax.grad(lambda p: loss(p, None, **kwargs)))
+    theirs = jax.jit(jax.grad(lambda p: loss(p, CHECKPOINTS, **kwargs)))
     return ours(PARAMS), theirs(PARAMS)
 
 
@@ -114,7 +116,7 @@ def test_sampled_force_with_a_jump_time():
         return loss((*PARAMS[:4], sampled), adjoint)
 
     ours = jax.grad(lambda F: of_samples(F, eo.StepwiseAdjoint()))(samples)
-    theirs = jax.grad(lambda F: of_samples(F, None))(samples)
+    theirs = jax.grad(lambda F: of_samples(F, CHECKPOINTS))(samples)
     gap = float(jnp.max(jnp.abs(ours - theirs)) / jnp.max(jnp.abs(theirs)))
     assert gap < RTOL, gap
 
@@ -147,10 +149,9 @@ def test_run_stopped_before_the_end(prescribed):
         YDOT0,
         TS,
         forces=LIFT,
-        max_steps=40,
+        options=eo.SimulationOptions("tsit5", max_steps=40, **TOL),
         throw=False,
         prescribed=motion,
-        **TOL,
     )
     assert traj.status == eo.Status.MAX_STEPS_REACHED
     reached = np.all(np.isfinite(np.asarray(traj.y)), axis=(1, 2))
@@ -164,7 +165,7 @@ def test_unsupported_solver_is_refused():
             Y0,
             YDOT0,
             TS,
-            solver=diffrax.Kvaerno5(),
+            options=eo.SimulationOptions(diffrax.Kvaerno5()),
             adjoint=eo.StepwiseAdjoint(),
         )
 
@@ -177,6 +178,7 @@ def test_output_times_are_not_differentiated():
         )
         return traj.y[-1, 0, 2]
 
+    # (asked for explicitly; the default falls back on diffrax's adjoint)
     with pytest.raises(ValueError, match="output times ts"):
         jax.grad(final_height)(TS)
 
@@ -214,12 +216,13 @@ def test_kept_steps_is_checked(kept):
 def test_steps_past_the_kept_ones_are_replayed():
     """With `kept_steps=64` the run's steps past the 64th keep every 2nd, 4th and
     8th start state; the backward pass replays the others from them."""
-    traj = eo.simulate(MODEL, Y0, YDOT0, TS, forces=LIFT, **TOL)
+    options = eo.SimulationOptions("tsit5", **TOL)
+    traj = eo.simulate(MODEL, Y0, YDOT0, TS, forces=LIFT, options=options)
     assert int(traj.n_steps) > 64 * (2**3 - 1)  # into the fourth level
     ours = jax.jit(
         jax.grad(lambda p: loss(p, eo.StepwiseAdjoint(kept_steps=64), max_steps=1000))
     )(PARAMS)
-    theirs = jax.jit(jax.grad(lambda p: loss(p, None)))(PARAMS)
+    theirs = jax.jit(jax.grad(lambda p: loss(p, CHECKPOINTS)))(PARAMS)
     assert_close(ours, theirs)
 
 
@@ -241,7 +244,30 @@ def test_vmap_of_gradients(max_steps):
 
     batch = jax.jit(jax.vmap(gradient(eo.StepwiseAdjoint(kept_steps=64)), in_axes))
     ours = batch((stiffness, *PARAMS[1:]))
-    single = jax.jit(gradient(None))
+    single = jax.jit(gradient(CHECKPOINTS))
     for i in range(stiffness.shape[0]):
         theirs = single((stiffness[i], *PARAMS[1:]))
         assert_close([g[i] for g in ours], theirs, rtol=1e-9)
+
+
+@pytest.mark.slow
+def test_the_default_adjoint_is_stepwise_with_diffrax_for_the_rest():
+    """`adjoint=None`: the stepwise adjoint for an explicit Runge-Kutta solver
+    (the same gradients, bitwise), and diffrax's adjoint for a gradient with
+    respect to the output times, which the stepwise adjoint holds fixed."""
+    default = jax.jit(jax.grad(lambda p: loss(p, None)))(PARAMS)
+    stepwise = jax.jit(jax.grad(lambda p: loss(p, eo.StepwiseAdjoint())))(PARAMS)
+    for a, b in zip(jax.tree.leaves(default), jax.tree.leaves(stepwise), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+    def final_height(ts, adjoint):
+        options = eo.SimulationOptions("tsit5", **TOL)
+        traj = eo.simulate(
+            MODEL, Y0, YDOT0, ts, options=options, adjoint=adjoint, throw=False
+        )
+        return traj.y[-1, 0, 2]
+
+    ours = jax.grad(final_height)(TS, None)
+    theirs = jax.grad(final_height)(TS, CHECKPOINTS)
+    assert float(jnp.max(jnp.abs(theirs))) > 0
+    np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-15)

@@ -46,7 +46,9 @@ def register(subparsers) -> None:
 
 def run_default(rtol: float = 1e-8, atol: float = 1e-10) -> dict:
     """Simulate `default_scenario()` and return its summary as a dict."""
-    scenario = dataclasses.replace(default_scenario(), rtol=rtol, atol=atol)
+    scenario = default_scenario()
+    options = dataclasses.replace(scenario.options, rtol=rtol, atol=atol)
+    scenario = dataclasses.replace(scenario, options=options)
     start = time.perf_counter()
     traj = scenario.simulate()
     traj.y.block_until_ready()
@@ -56,9 +58,10 @@ def run_default(rtol: float = 1e-8, atol: float = 1e-10) -> dict:
 def execute(args) -> int:
     scenario = default_scenario()
     tolerances = {k: getattr(args, k) for k in ("rtol", "atol")}
-    scenario = dataclasses.replace(
-        scenario, **{k: v for k, v in tolerances.items() if v is not None}
+    options = dataclasses.replace(
+        scenario.options, **{k: v for k, v in tolerances.items() if v is not None}
     )
+    scenario = dataclasses.replace(scenario, options=options)
     folder = None if args.output is None else output_folder(args)
     traj, wall, error = simulate_scenario(scenario, args)
     if folder is not None:

@@ -17,7 +17,7 @@ from .._forces import ConstantForce, PoseTracking, SampledForce
 from .._models import AbstractElasticModel, Connection, ImmobileModel, MobileModel
 from .._models.immobile import check_stiffness, check_symmetric_psd
 from .._naming import coordinate_names
-from .._options import GIMBAL_TOL
+from .._options import GIMBAL_TOL, SimulationOptions
 from .._rotations import get_rotation
 from .._scenario import IdentifySpec, PrescribedSpec, Scenario
 from .data_files import read_matrix, read_series
@@ -703,10 +703,13 @@ class _Builder:
             forces=forces,
             body_names=tuple(self.names),
             connection_names=conns[1] if conns is not None else (),
-            solver=solver.name,
-            rtol=solver.rtol,
-            atol=solver.atol,
-            max_steps=solver.max_steps,
+            options=SimulationOptions(
+                solver.name,
+                solver.rtol,
+                solver.atol,
+                solver.max_steps,
+                owner="Scenario",
+            ),
             prescribed=prescribed,
             description=self.info.description,
             source=self.source,

@@ -355,7 +355,8 @@ class _StudyBuilder:
                 scenario.forces, start=jnp.asarray(float(ts[0]))
             )
         if solver is not None:
-            changes |= {k: v for k, v in solver.model_dump().items() if v is not None}
+            given = {k: v for k, v in solver.model_dump().items() if v is not None}
+            changes["options"] = dataclasses.replace(scenario.options, **given)
         return dataclasses.replace(scenario, **changes)  # type: ignore[type-var]
 
     # -- what varies ----------------------------------------------------------------

@@ -10,12 +10,16 @@
 - `outcome.Outcome`: what a solve returns.
 """
 
-from .adjoint import StepwiseAdjoint as StepwiseAdjoint
+from .adjoint import (
+    StepwiseAdjoint as StepwiseAdjoint,
+    default_adjoint as default_adjoint,
+)
+from .batch_loop import default_lanes as default_lanes
 from .controller import (
     MIN_STEP_ULPS as MIN_STEP_ULPS,
     StopFailedSteps as StopFailedSteps,
 )
 from .error_norm import rms_norm as rms_norm
 from .events import locate_event as locate_event
-from .outcome import Outcome as Outcome, result_code as result_code
+from .outcome import Outcome as Outcome
 from .solve import integrate as integrate

@@ -28,15 +28,12 @@ $\\bar x_{n+1}$ and $\\bar K^{out}$ with the interpolation's coefficients at $\\
 Each step's products are taken inside a `jax.lax.cond` whose operands are small
 arrays (a state or less each). XLA's CPU runtime runs the operations of such a
 branch one after the other; the loop's body, which touches large arrays, it runs
-as a graph, handing work to its thread pool and back, which made a product cost
-about twice as much applied in the body itself (in `benchmarks/gradients.py`'s
-stepwise adjoint 80 against 33 us per step of the default scenario; one branch
-per step rather than one per product: a backward pass of 31-32 against 32.5-33
-ms). The stage inputs are
-replayed `_BLOCK` steps at a time (`vmap`), and the outputs' shares are summed per
-step beforehand (a scan over the outputs that starts again at each step's first).
-(Replayed step by step, or taken by a loop over each step's outputs, each cost
-about 10 ms more of some 57 ms on the default scenario.)
+as a graph, handing work to its thread pool and back, which makes a product
+cost more applied in the body itself (`benchmarks/gradients.py`). The stage inputs
+are replayed `_BLOCK` steps at a time (`vmap`), and the outputs' shares are summed
+per step beforehand (a scan over the outputs that starts again at each step's
+first), both quicker than replaying step by step or looping over each step's
+outputs.
 
 The times of the steps are held fixed, as diffrax's own adjoint holds them (its
 step-size controller stops gradients): the two give the same gradients to rounding
@@ -54,7 +51,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
+from .._compat import dense_interpolation, dense_stages
 from .recorder import AcceptedSteps, StepLayout
 
 # Steps whose stage inputs the backward pass replays at once (`vmap`).
@@ -62,8 +61,9 @@ _BLOCK = 64
 
 
 class StepwiseAdjoint(eqx.Module):
-    """Reverse-mode gradients of `simulate` through its accepted steps: pass
-    `adjoint=elasticoop.StepwiseAdjoint()`.
+    """Reverse-mode gradients of `simulate` through its accepted steps:
+    `simulate`'s default for the explicit Runge-Kutta solvers it supports, or
+    `adjoint=elasticoop.StepwiseAdjoint(kept_steps=...)` to choose its memory.
 
     The discrete adjoint of the computed solution, replaying each accepted step
     from its start and taking the products of the vector field at its stages (the
@@ -73,7 +73,9 @@ class StepwiseAdjoint(eqx.Module):
 
     - Gradients with respect to the initial state and every floating-point array
       of the model and the forces. Not with respect to the output times `ts`,
-      `dt0`, the tolerances or a force's jump times (a `ValueError` says so). The
+      `dt0`, the tolerances or a force's jump times (a `ValueError` says so;
+      with the default `adjoint=None` such a gradient is taken by diffrax's
+      `RecursiveCheckpointAdjoint` instead). The
       step times are held fixed, as in `diffrax.RecursiveCheckpointAdjoint`: the
       two give the same gradients to rounding.
     - Reverse mode only (`jax.grad`, `jax.vjp`); for forward mode (`jax.jacfwd`)
@@ -87,11 +89,10 @@ class StepwiseAdjoint(eqx.Module):
       between two kept states from the earlier one (once more each, a run of
       more than `kept_steps` steps only). That is $2\\,\\text{max\\_steps} +
       (12(m + 1) + 2)\\,\\text{kept\\_steps}\\,L$ floats, with $L$ the levels it takes
-      ($\\text{kept\\_steps}\\,(2^L - 1) \\ge \\text{max\\_steps}$): 5.3 MB for three
-      bodies at the defaults (`max_steps=100_000`, `kept_steps=2048`, $L = 6$),
-      allocated and filled at each call. Keeping every step took 32 MB and made
-      the gradient of the default scenario (1261 steps) 4.8x its forward run,
-      against 3.8x now (`benchmarks/gradients.py`).
+      ($\\text{kept\\_steps}\\,(2^L - 1) \\ge \\text{max\\_steps}$), $L = 6$ at
+      the defaults (`max_steps=100_000`, `kept_steps=2048`), allocated and filled
+      at each call: a fraction of what keeping every step would take, and
+      quicker to fill (`benchmarks/gradients.py`).
     - Under `jax.vmap` (a batch of gradients), the forward half runs in the
       batch loop of `simulate(..., batch_loop=True)`, which writes the record in
       place (`vmap` of diffrax's loop would copy it at every step), and the
@@ -103,7 +104,7 @@ class StepwiseAdjoint(eqx.Module):
 
     kept_steps: int = eqx.field(default=2048, static=True)
 
-    def __check_init__(self):
+    def __check_init__(self) -> None:
         if (
             isinstance(self.kept_steps, bool)
             or not isinstance(self.kept_steps, int | np.integer)
@@ -127,7 +128,7 @@ def check_solver(solver: Any) -> None:
     supported = (
         isinstance(solver, diffrax.AbstractERK)
         and isinstance(tableau, diffrax.ButcherTableau)
-        and _dense_stages(solver) == len(tableau.b_sol)
+        and dense_stages(solver) == len(tableau.b_sol)
     )
     if not supported:
         raise ValueError(
@@ -138,31 +139,14 @@ def check_solver(solver: Any) -> None:
         )
 
 
-def _dense_stages(solver: Any) -> int | None:
-    """How many stage increments the solver's dense output holds (its `k`)."""
-    term = diffrax.ODETerm(lambda t, y, args: -y)
-    y0 = jnp.zeros(1)
-
-    def step():
-        state = solver.init(term, 0.0, 1.0, y0, None)
-        return solver.step(term, 0.0, 1.0, y0, None, state, False)[2]
-
-    try:
-        dense = jax.eval_shape(step)
-    except Exception:  # not a solver of this kind
-        return None
-    k = dense.get("k") if isinstance(dense, dict) else None
-    return None if k is None else int(k.shape[0])
-
-
-def _interpolation_weights(solver, t0, t1, tau, stages: int):
+def _interpolation_weights(
+    solver: diffrax.AbstractSolver, t0: Array, t1: Array, tau: Array, stages: int
+) -> Array:
     """The coefficients of $(x_n, x_{n+1}, K_1, \\dots, K_s)$ in the solver's dense
     output at `tau` in the step from `t0` to `t1` (it is linear in them)."""
 
     def value(c):
-        interpolation = solver.interpolation_cls(
-            t0=t0, t1=t1, y0=c[0], y1=c[1], k=c[2:]
-        )
+        interpolation = dense_interpolation(solver, t0, t1, c[0], c[1], c[2:])
         return interpolation.evaluate(tau)
 
     return jax.grad(value)(jnp.zeros(stages + 2, dtype=jnp.result_type(t0)))
@@ -176,6 +160,8 @@ def stepwise_solve(
     static: Any,
     arrays: Any,
     run_batch: Callable[[Any, Any], tuple[Any, AcceptedSteps]] | None = None,
+    forward: Callable[[Any], Any] | None = None,
+    fallback: Callable[[Any, Any], Any] | None = None,
 ) -> Any:
     """`run(arrays, keep_steps)[0]` (an `Outcome`), differentiated in reverse mode
     as the module's docstring says. `run` returns `(outcome, steps)`: with
@@ -184,7 +170,13 @@ def stepwise_solve(
     `run_batch(arrays, batched)`, if given, is what `run(arrays, True)` becomes
     under `jax.vmap` (`batched`: whether each leaf of `arrays` is batched): a batch
     whose record of the steps is not copied at each step, as `vmap` of diffrax's
-    loop copies it (the batch loop, `batch_loop.py`)."""
+    loop copies it (the batch loop, `batch_loop.py`). `forward(arrays)`, if given,
+    is the solve where nothing is differentiated (default `run(arrays, False)[0]`;
+    `integrate` passes one that runs the batch loop under `vmap`).
+    `fallback(arrays, outcome_cotangent)`, if given, gives the cotangents of
+    `arrays` where a gradient is asked with respect to what this adjoint does not
+    differentiate (output times, `dt0`, the controller); without it that is a
+    `ValueError`."""
     tableau = solver.tableau
     assert isinstance(tableau, diffrax.ButcherTableau)  # (`check_solver`)
     b = np.asarray(tableau.b_sol, dtype=float)
@@ -214,8 +206,7 @@ def stepwise_solve(
         over blocks of steps, each a loop over its steps (what `vmap` gets: in the
         one loop over the steps, its test of whether to replay a block would
         replay one at every step); else one loop over the steps, which is quicker
-        for one run (3.8x against 4.1x the forward run of the default scenario in
-        `benchmarks/gradients.py`)."""
+        for one run (`benchmarks/gradients.py`)."""
         zeros = jax.tree.map(jnp.zeros_like, diff_args)
 
         def f(t, x, d):
@@ -311,7 +302,7 @@ def stepwise_solve(
             # docstring says why). (k < 0 in the last block of the loop over
             # blocks, where the branch is not taken, or under `vmap` its results
             # discarded: `t_start[k]` wraps around. Clipped, `max(k, 0)`, it made
-            # the backward pass of one run 3 ms slower, 31 against 28 ms.)
+            # the backward pass slower.)
             return jax.lax.cond(
                 k >= 0,
                 step_back,
@@ -366,6 +357,8 @@ def stepwise_solve(
 
     @eqx.filter_custom_vjp
     def solve(arrays):
+        if forward is not None:
+            return forward(arrays)
         return run(arrays, False)[0]
 
     def record(arrays):
@@ -387,6 +380,8 @@ def stepwise_solve(
 
     @solve.def_bwd
     def solve_bwd(residuals, grad_outcome, perturbed, arrays):
+        if fallback is not None and _beyond_adjoint(perturbed):
+            return fallback(arrays, grad_outcome)
         _check_perturbed(perturbed)
         out_ts, steps = residuals
         t_start, t_end, y_start = steps.t_start, steps.t_end, steps.y_start
@@ -466,7 +461,7 @@ def _is_none(value: Any) -> bool:
     return value is None
 
 
-def _stage_time(t0, t1, h, c_i: float):
+def _stage_time(t0: Array, t1: Array, h: Array, c_i: float) -> Array:
     """$t_n + c_i h$, exactly $t_{n+1}$ for $c_i = 1$ (as diffrax's stages)."""
     if c_i == 0:
         return t0
@@ -475,17 +470,27 @@ def _stage_time(t0, t1, h, c_i: float):
     return t0 + c_i * h
 
 
+_NOT_DIFFERENTIATED = {
+    "ts": "output times ts",
+    "dt0": "first step dt0",
+    "controller": "step-size controller (its tolerances, or a SampledForce's "
+    "jump times: differentiate with respect to its values F only)",
+}
+
+
+def _beyond_adjoint(perturbed: Any) -> bool:
+    """Whether a gradient is asked with respect to what the adjoint does not
+    differentiate."""
+    return any(
+        any(jax.tree.leaves(getattr(perturbed, name))) for name in _NOT_DIFFERENTIATED
+    )
+
+
 def _check_perturbed(perturbed: Any) -> None:
     """A `ValueError` if a gradient is asked with respect to what the adjoint does
     not differentiate (output times, `dt0`, the controller's tolerances and jump
     times)."""
-    what = {
-        "ts": "output times ts",
-        "dt0": "first step dt0",
-        "controller": "step-size controller (its tolerances, or a SampledForce's "
-        "jump times: differentiate with respect to its values F only)",
-    }
-    for name, description in what.items():
+    for name, description in _NOT_DIFFERENTIATED.items():
         if any(jax.tree.leaves(getattr(perturbed, name))):
             raise ValueError(
                 f"StepwiseAdjoint differentiates with respect to the initial state "
@@ -493,3 +498,17 @@ def _check_perturbed(perturbed: Any) -> None:
                 f"{description}; use adjoint=diffrax.RecursiveCheckpointAdjoint() "
                 f"for that"
             )
+
+
+def default_adjoint(
+    solver: diffrax.AbstractSolver,
+) -> tuple[StepwiseAdjoint | diffrax.AbstractAdjoint, bool]:
+    """The adjoint a solve with `solver` gets by default, and whether gradients it
+    does not take fall back on diffrax's: `StepwiseAdjoint()` for the explicit
+    Runge-Kutta solvers it supports (with the fallback), else
+    `diffrax.RecursiveCheckpointAdjoint()`."""
+    try:
+        check_solver(solver)
+    except ValueError:
+        return diffrax.RecursiveCheckpointAdjoint(), False
+    return StepwiseAdjoint(), True

@@ -2,7 +2,7 @@
 
 `integrate` (`solve.py`) hands a batched solve here through
 `jax.custom_batching.custom_vmap`. Why: `vmap` of diffrax's loop runs the solver's
-step under `vmap`, which costs about three times the step on one batched array
+step under `vmap`, which costs several times the step on one batched array
 (`benchmarks/loop.py`: the Tsit5 step alone). The batch loop steps the batched
 state at once, each sample $b$ from its own time $t_b$ over its own step $h_b$,
 with the solver's Butcher tableau (`rk_step.py`: diffrax's arithmetic, its sums
@@ -25,45 +25,110 @@ the next sample waiting starts in its lane, from a start computed before the loo
 (in blocks of `lanes` samples); the samples still in their lanes when none waits
 are stored together after the loop (so a batch that fits its lanes, as on a GPU,
 stores nothing inside the loop). A batch of samples all at once runs until its
-slowest sample is done, its other lanes idle meanwhile: for the 1024 samples of
-`benchmarks/montecarlo.py` (Dopri8, rtol 1e-9) in batches of 128, 15 % more lane
-steps than the samples' own steps. Each sample's results do not depend on the
+slowest sample is done, its other lanes idle meanwhile; lanes refilled as samples
+stop take few more lane steps than the samples' own steps
+(`benchmarks/montecarlo.py`). Each sample's results do not depend on the
 number of lanes or on the lane it ran in; they equal those of the whole batch at
 once to rounding (not bitwise: the tests compare them to 1e-12).
 """
 
-from collections.abc import Callable
+import dataclasses
+from collections.abc import Callable, Sequence
 from functools import partial
+from typing import Any
 
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, PyTree
+from jaxtyping import Array, Bool, Float, Int, PyTree
 
-from .outcome import EVENT_OCCURRED, MAX_STEPS_REACHED, SUCCESSFUL, Outcome
-from .recorder import AbstractStepRecorder
+from .._compat import dense_interpolation, wrapped_term
+from .outcome import Outcome, results_where
+from .recorder import AbstractStepRecorder, AcceptedSteps
 from .rk_step import by_row, explicit_step, stage_buffer
 
+RESULTS = diffrax.RESULTS
 
-class _Wrapped(diffrax.AbstractTerm):
-    """`term` as `diffrax.diffeqsolve` hands it to the step-size controller's
-    `init`: wrapped (diffrax wraps every term in its time direction), so that the
-    controller picks the same first step as there (diffrax 0.7 estimates one for an
-    `ODETerm` only, and tries 0.01 for any other term). The tests compare the
-    steps of a batch with single runs."""
 
-    term: diffrax.AbstractTerm
+# The lanes of the batch loop by default on a CPU: wide enough for the vector
+# field's arithmetic to run on whole vectors, narrow enough that few lanes idle
+# (`benchmarks/vmap_default.py`, `benchmarks/montecarlo.py`).
+CPU_LANES = 128
 
-    def vf(self, t, y, args):
-        return self.term.vf(t, y, args)
 
-    def contr(self, t0, t1, **kwargs):
-        return self.term.contr(t0, t1, **kwargs)
+def default_lanes() -> bool | int:
+    """The lanes of `simulate`'s batch loop by default: `CPU_LANES` on a CPU, and on
+    an accelerator the whole batch at once (`True`), whose width it has the cores
+    for."""
+    return CPU_LANES if jax.default_backend() == "cpu" else True
 
-    def prod(self, vf, control):
-        return self.term.prod(vf, control)
+
+class _Sample(eqx.Module):
+    """Where each sample of the loop stands (a leading axis over the samples, or
+    over the lanes)."""
+
+    # the step to try next: from `tprev` to `tnext`
+    tprev: Float[Array, " width"]
+    tnext: Float[Array, " width"]
+    y: PyTree[Array]
+    # the first stage of the next step (FSAL; None otherwise): at the start as the
+    # solver's `init` evaluates it, then the last stage of the step accepted,
+    # evaluated again after a jump (`made_jump`; None where the controller never
+    # jumps)
+    f0: PyTree[Array] | None
+    made_jump: Bool[Array, " width"] | None
+    controller_state: PyTree
+    # diffrax's `RESULTS` (a type checker takes its items for strings)
+    result: Any
+    num_steps: Int[Array, " width"]
+    # the stop conditions at `tprev`, and which one ended the run
+    values: tuple[Array, ...]
+    mask: tuple[Bool[Array, " width"], ...]
+    # the next output: its index into ts, and its slot in the outputs (ts[0] is
+    # saved too, at the first step, so the two are one index)
+    next_time: Int[Array, " width"]
+
+
+class _Span(eqx.Module):
+    """What each sample is integrated over: its output times, the time from which
+    a step is stretched to the end (within 100 ulps of it, as diffrax does), the
+    end, and its own arrays of the setup (those batched)."""
+
+    ts: Float[Array, "width times"]
+    clip_floor: Float[Array, " width"]
+    t1: Float[Array, " width"]
+    batched: PyTree
+
+
+class _Finals(eqx.Module):
+    """What is kept of each sample once it has stopped."""
+
+    saved_ys: PyTree[Array]
+    tprev: Float[Array, " batch"]
+    result: Any
+    mask: tuple[Bool[Array, " batch"], ...]
+    controller_state: PyTree
+    num_steps: Int[Array, " batch"]
+    next_time: Int[Array, " batch"]
+
+
+class _LoopState(eqx.Module):
+    """The state of the batch loop: the samples in it, their outputs so far, the
+    stage increments of the last step tried, and a recording controller's record
+    of the steps (written in place, apart from the samples: selected with them it
+    would be copied at every step). In lanes also: each lane's span and sample,
+    the next sample waiting (`head`), and the results of the samples stopped."""
+
+    samples: _Sample
+    saved_ys: PyTree[Array]
+    ks: PyTree[Array]
+    record: AcceptedSteps | None = None
+    spans: _Span | None = None
+    lane_sample: Int[Array, " width"] | None = None
+    head: Int[Array, ""] | None = None
+    done: _Finals | None = None
 
 
 def _float_before(x: Array) -> Array:
@@ -75,11 +140,11 @@ def _select(pred: Bool[Array, " batch"], new: PyTree, old: PyTree) -> PyTree:
     return jax.tree.map(lambda n, o: jnp.where(by_row(pred, n), n, o), new, old)
 
 
-def _row(tree: PyTree, i) -> PyTree:
+def _row(tree: Any, i: Any) -> Any:
     return jax.tree.map(lambda x: x[i], tree)
 
 
-def _set_row(tree: PyTree, i, value: PyTree) -> PyTree:
+def _set_row(tree: Any, i: Any, value: Any) -> Any:
     return jax.tree.map(lambda x, v: x.at[i].set(v), tree, value)
 
 
@@ -108,8 +173,15 @@ def _batch_size(arrays: PyTree, axes: PyTree) -> int:
 
 
 def batch_solve(
-    vector_field, solver, conditions, max_steps, static, arrays, axes, lanes=None
-):
+    vector_field: Callable[[Any, PyTree, Any], PyTree],
+    solver: diffrax.AbstractERK,
+    conditions: Sequence[Callable[[Any, PyTree, Any], Any]],
+    max_steps: int,
+    static: Any,
+    arrays: Any,
+    axes: Any,
+    lanes: int | None = None,
+) -> Outcome:
     """`integrate`'s solve for a batch, in one loop (the module's docstring), as an
     `Outcome` with a leading batch axis. `vector_field(t, y, args)`; `solver`: an
     explicit Runge-Kutta method with a Butcher tableau; `conditions`: the stop
@@ -120,7 +192,7 @@ def batch_solve(
     starting in the place of one that has stopped (the module's docstring); None:
     the whole batch at once."""
 
-    def per_sample(fn, *sample_axes):
+    def per_sample(fn: Callable, *sample_axes: int | None) -> Callable:
         """`fn(setup, *per-sample)` for every sample."""
 
         def one(arrays, *xs):
@@ -132,7 +204,7 @@ def batch_solve(
     error_order = solver.error_order(term)
     field = per_sample(lambda s, t, y: vector_field(t, y, s.args), 0, 0)
 
-    def evaluate_conditions(arrays, t, y):
+    def evaluate_conditions(arrays: Any, t: Array, y: PyTree) -> tuple[Array, ...]:
         return tuple(
             per_sample(lambda s, t, y, c=c: jnp.asarray(c(t, y, s.args)), 0, 0)(
                 arrays, t, y
@@ -142,7 +214,7 @@ def batch_solve(
 
     def init(s):
         t_next, state = s.controller.wrap(1).init(
-            _Wrapped(term), s.ts[0], s.ts[-1], s.y0, s.dt0, s.args, solver.func,
+            wrapped_term(term), s.ts[0], s.ts[-1], s.y0, s.dt0, s.args, solver.func,
             error_order,
         )  # fmt: skip
         # within 100 ulps of the end, a step is stretched to it (as diffrax does)
@@ -152,6 +224,7 @@ def batch_solve(
         return s.ts, clip_floor, jnp.minimum(t_next, s.ts[-1]), state, s.y0
 
     tableau = solver.tableau
+    assert isinstance(tableau, diffrax.ButcherTableau)  # (`integrate` checks)
     fsal = tableau.fsal  # the first stage the same as the last one
 
     def starts(arrays):
@@ -172,7 +245,7 @@ def batch_solve(
 
     batch = _batch_size(arrays, axes)
     queued = lanes is not None
-    width = min(lanes, batch) if queued else batch
+    width = batch if lanes is None else min(lanes, batch)
     if queued:
         # in blocks of `lanes` samples, so that each sample's start is computed
         # as in a loop over `lanes` samples at once (the vector field's results
@@ -201,85 +274,13 @@ def batch_solve(
     if recording:
         record, controller_state = recorder.accepted_steps(controller_state)
     t0, t1 = ts[:, 0], ts[:, -1]
-    # each sample's state at its start
-    start = dict(
-        tprev=t0,
-        tnext=tnext,
-        y=y,
-        # the first stage of the next step (FSAL): at the start as the solver's
-        # `init` evaluates it, then the last stage of the step accepted, evaluated
-        # again after a jump
-        f0=f0,
-        made_jump=jnp.zeros(batch, bool),
-        controller_state=controller_state,
-        result=jnp.full(batch, SUCCESSFUL, jnp.int32),
-        num_steps=jnp.zeros(batch, jnp.int32),
-        values=values,
-        mask=tuple(jnp.zeros(batch, bool) for _ in conditions),
-        # the next output: its index into ts, and its slot in the outputs (ts[0]
-        # is saved too, at the first step, so the two are one index). The times
-        # of the outputs saved are those of ts: filled in after the loop
-        next_time=jnp.zeros(batch, jnp.int32),
-    )
-    # what each sample is integrated with: its times and setup
-    setup = dict(ts=ts, clip_floor=clip_floor, t1=t1, arrays=arrays)
-    carry = dict(start)
-    # the batched arrays of the setup, and the others (the same for every sample)
+    # what each sample is integrated over, and the samples' arrays that differ
+    # from one to the next (the others are the same for every sample)
     spec = jax.tree.unflatten(
         jax.tree.structure(arrays), [a is not None for a in _leaf_axes(arrays, axes)]
     )
     batched, shared = eqx.partition(arrays, spec)
-    if queued:
-        # The lanes start with the first `lanes` samples; `sample`: the sample in
-        # each lane; `head`: the next sample waiting
-        carry = _row(carry, slice(0, width))
-        carry["setup"] = _row(
-            dict(ts=ts, clip_floor=clip_floor, t1=t1, batched=batched),
-            slice(0, width),
-        )
-        carry["sample"] = jnp.arange(width)
-        carry["head"] = jnp.asarray(width)
-        # each sample's results, written as it stops
-        carry["done"] = dict(
-            saved_ys=jax.tree.map(
-                lambda x: jnp.full(
-                    (batch, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype
-                ),
-                y,
-            ),
-            tprev=t0,
-            result=start["result"],
-            mask=start["mask"],
-            controller_state=controller_state,
-            num_steps=start["num_steps"],
-            next_time=start["next_time"],
-        )
-    carry["saved_ys"] = jax.tree.map(
-        lambda x: jnp.full((width, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype), y
-    )
-    # the stage increments (of the last step tried)
-    carry["ks"] = stage_buffer(tableau, _row(y, slice(0, width)))
-    if recording:
-        carry["record"] = record
-    rows = jnp.arange(width)
-
-    def setup_of(c):
-        if not queued:
-            return setup
-        lane = dict(c["setup"])
-        return lane | dict(arrays=eqx.combine(lane.pop("batched"), shared))
-
-    def full_state(c):
-        """The controller's state, its record of the steps put back."""
-        if recording:
-            return recorder.with_accepted_steps(c["controller_state"], c["record"])
-        return c["controller_state"]
-
-    def unfinished(c):
-        return (c["tprev"] < setup_of(c)["t1"]) & (c["result"] == SUCCESSFUL)
-
-    def running(c):
-        return unfinished(c) & (c["num_steps"] < max_steps)
+    everyone = _Span(ts, clip_floor, t1, batched)
 
     jumps = []  # whether the controller may report a jump (see below)
 
@@ -302,175 +303,259 @@ def batch_solve(
     )
     jax.eval_shape(adapt, arrays, t0, t0, y, y, y, whole_state)
     track_jumps = fsal and any(jumps)
-    if not track_jumps:
-        carry["made_jump"] = None
 
-    def body(c):
-        setup = setup_of(c)
-        arrays, ts, t1 = setup["arrays"], setup["ts"], setup["t1"]
+    # each sample's state at its start
+    start = _Sample(
+        tprev=t0,
+        tnext=tnext,
+        y=y,
+        f0=f0,
+        made_jump=jnp.zeros(batch, bool) if track_jumps else None,
+        controller_state=controller_state,
+        result=results_where(
+            jnp.ones(batch, bool), RESULTS.successful, RESULTS.successful
+        ),
+        num_steps=jnp.zeros(batch, jnp.int32),
+        values=values,
+        mask=tuple(jnp.zeros(batch, bool) for _ in conditions),
+        next_time=jnp.zeros(batch, jnp.int32),
+    )
+    saved_ys = jax.tree.map(
+        lambda x: jnp.full((width, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype), y
+    )
+    # the stage increments (of the last step tried)
+    ks = stage_buffer(tableau, _row(y, slice(0, width)))
+    carry: _LoopState
+    if queued:
+        # The lanes start with the first `lanes` samples
+        lanes_now = slice(0, width)
+        carry = _LoopState(
+            samples=_row(start, lanes_now),
+            saved_ys=saved_ys,
+            ks=ks,
+            record=None,
+            spans=_row(everyone, lanes_now),
+            lane_sample=jnp.arange(width),
+            head=jnp.asarray(width),
+            done=_Finals(
+                saved_ys=jax.tree.map(
+                    lambda x: jnp.full(
+                        (batch, n_times + 1, *x.shape[1:]), jnp.inf, x.dtype
+                    ),
+                    y,
+                ),
+                tprev=t0,
+                result=start.result,
+                mask=start.mask,
+                controller_state=controller_state,
+                num_steps=start.num_steps,
+                next_time=start.next_time,
+            ),
+        )
+    else:
+        carry = _LoopState(start, saved_ys, ks, record)
+    rows = jnp.arange(width)
+
+    def span_of(c: _LoopState) -> tuple[_Span, PyTree]:
+        """What the samples in the loop are integrated over, and their setup."""
+        if c.spans is None:
+            return everyone, arrays
+        return c.spans, eqx.combine(c.spans.batched, shared)
+
+    def full_state(c: _LoopState) -> PyTree:
+        """The controller's state, its record of the steps put back."""
+        if recording:
+            return recorder.with_accepted_steps(c.samples.controller_state, c.record)
+        return c.samples.controller_state
+
+    def unfinished(c: _LoopState) -> Bool[Array, " width"]:
+        s = c.samples
+        return (s.tprev < span_of(c)[0].t1) & (s.result == RESULTS.successful)
+
+    def running(c: _LoopState) -> Bool[Array, " width"]:
+        return unfinished(c) & (c.samples.num_steps < max_steps)
+
+    def body(c: _LoopState) -> _LoopState:
+        span, arrays = span_of(c)
+        s = c.samples
         active = running(c)
-        f0 = c["f0"]
+        f0 = s.f0
         if track_jumps:
-            redo = c["made_jump"] & active
+            assert s.made_jump is not None
+            redo = s.made_jump & active
             f0 = jax.lax.cond(
                 jnp.any(redo),
-                lambda: _select(redo, field(arrays, c["tprev"], c["y"]), f0),
+                lambda: _select(redo, field(arrays, s.tprev, s.y), f0),
                 lambda: f0,
             )
         y1, y_error, ks, f_last = explicit_step(
             tableau,
             partial(field, arrays),
-            c["tprev"],
-            c["tnext"],
-            c["y"],
+            s.tprev,
+            s.tnext,
+            s.y,
             f0,  # None where the tableau is not first-same-as-last
-            c["ks"],
+            c.ks,
         )
         y_error = jax.tree.map(lambda x: jnp.where(jnp.isnan(x), jnp.inf, x), y_error)
         keep, tprev, tnext, made_jump, controller_state, result = adapt(
-            arrays, c["tprev"], c["tnext"], c["y"], y1, y_error, full_state(c)
+            arrays, s.tprev, s.tnext, s.y, y1, y_error, full_state(c)
         )
+        record = c.record
         if recording:
             # (a finished sample writes its record past its last step: unread)
             record, controller_state = recorder.accepted_steps(controller_state)
-        tprev = jnp.minimum(tprev, t1)
+        tprev = jnp.minimum(tprev, span.t1)
         tnext = jnp.where(
-            tnext > setup["clip_floor"],
-            jnp.where(keep, t1, tprev + 0.5 * (t1 - tprev)),
+            tnext > span.clip_floor,
+            jnp.where(keep, span.t1, tprev + 0.5 * (span.t1 - tprev)),
             tnext,
         )
-        y = _select(keep, y1, c["y"])
+        y = _select(keep, y1, s.y)
         if fsal:
             f0 = _select(keep, f_last, f0)
         if track_jumps:
-            made_jump = jnp.where(keep, made_jump, c["made_jump"])
+            assert s.made_jump is not None
+            made_jump = jnp.where(keep, made_jump, s.made_jump)
         else:
             made_jump = None
-        result = jnp.where(c["result"] == SUCCESSFUL, result._value, c["result"])
-        dense = dict(y0=c["y"], y1=y1, k=ks)
-        outputs = _save_outputs(solver, dense, c, active & keep, ts, rows, n_times)
+        result = results_where(s.result == RESULTS.successful, result, s.result)
+        # the outputs are written only where a step was accepted
+        next_time, saved_ys = _save_outputs(
+            solver,
+            dict(y0=s.y, y1=y1, k=ks),
+            (s.tprev, s.tnext),
+            (s.next_time, c.saved_ys),
+            active & keep,
+            span.ts,
+            rows,
+            n_times,
+        )
         values = evaluate_conditions(arrays, tprev, y)
         mask, had_event = [], jnp.zeros(width, bool)
-        for old, new in zip(c["values"], values, strict=True):
+        for old, new in zip(s.values, values, strict=True):
             hit = (jnp.sign(old) > 0) & (jnp.sign(new) <= 0)
             mask.append(hit & ~had_event)
             had_event = had_event | hit
-        new = dict(
+        stepped = _Sample(
             tprev=tprev,
             tnext=tnext,
             y=y,
             f0=f0,
             made_jump=made_jump,
             controller_state=controller_state,
-            result=jnp.where(had_event, EVENT_OCCURRED, result),
-            num_steps=c["num_steps"] + 1,
+            result=results_where(had_event, RESULTS.event_occurred, result),
+            num_steps=s.num_steps + 1,
             values=values,
             mask=tuple(mask),
+            next_time=next_time,
         )
-        # the outputs are written only where a step was accepted; the stage
-        # increments are those of the step just tried (written before read)
-        written = outputs | dict(ks=ks)
-        if recording:
-            written["record"] = record
-        frozen = {k: v for k, v in c.items() if k not in written and k not in new}
-        c = _select(active, new, {k: c[k] for k in new}) | frozen | written
+        # the stage increments are those of the step just tried (written before
+        # read), the record is written in place
+        c = dataclasses.replace(
+            c,
+            samples=_select(active, stepped, s),
+            saved_ys=saved_ys,
+            ks=ks,
+            record=record,
+        )
         return refill(c) if queued else c
 
-    def with_end_state(saved_ys, slot, y):
+    def with_end_state(saved_ys: PyTree, slot: Array, y: PyTree) -> PyTree:
         """The outputs with the end state after them (diffrax's SaveAt(t1=True))."""
         return jax.tree.map(
             lambda b, v: b.at[rows, slot].set(v, mode="drop"), saved_ys, y
         )
 
-    def retire_and_start(c):
+    def retire_and_start(c: _LoopState) -> _LoopState:
         """The first lane whose sample has stopped: the sample's results stored,
         and the next sample waiting started in its place."""
+        assert c.lane_sample is not None and c.head is not None
+        assert c.done is not None and c.spans is not None
         lane = jnp.argmax(~running(c))
-        sample = c["sample"][lane]
+        s = c.samples
         end = jax.tree.map(
-            lambda b, v: b[lane].at[c["next_time"][lane]].set(v[lane], mode="drop"),
-            c["saved_ys"],
-            c["y"],
+            lambda b, v: b[lane].at[s.next_time[lane]].set(v[lane], mode="drop"),
+            c.saved_ys,
+            s.y,
         )
-        result = c["result"][lane]
-        result = jnp.where(unfinished(c)[lane], MAX_STEPS_REACHED, result)
-        finals = dict(
+        result = RESULTS.where(
+            unfinished(c)[lane], RESULTS.max_steps_reached, _row(s.result, lane)
+        )
+        finals = _Finals(
             saved_ys=end,
-            tprev=c["tprev"][lane],
+            tprev=s.tprev[lane],
             result=result,
-            mask=_row(c["mask"], lane),
-            controller_state=_row(c["controller_state"], lane),
-            num_steps=c["num_steps"][lane],
-            next_time=c["next_time"][lane],
+            mask=_row(s.mask, lane),
+            controller_state=_row(s.controller_state, lane),
+            num_steps=s.num_steps[lane],
+            next_time=s.next_time[lane],
         )
-        done = _set_row(c["done"], sample, finals)
-        following = c["head"]
-        state = {k: c[k] for k in start if c[k] is not None}
-        begin = _row({k: start[k] for k in state}, following)
-        state = _set_row(state, lane, begin)
-        lane_setup = dict(ts=ts, clip_floor=clip_floor, t1=t1, batched=batched)
-        setup = _set_row(c["setup"], lane, _row(lane_setup, following))
-        saved_ys = jax.tree.map(lambda b: b.at[lane].set(jnp.inf), c["saved_ys"])
-        return (
-            c
-            | state
-            | dict(
-                setup=setup,
-                saved_ys=saved_ys,
-                done=done,
-                sample=c["sample"].at[lane].set(following),
-                head=following + 1,
-            )
+        following = c.head
+        return dataclasses.replace(
+            c,
+            samples=_set_row(s, lane, _row(start, following)),
+            spans=_set_row(c.spans, lane, _row(everyone, following)),
+            saved_ys=jax.tree.map(lambda b: b.at[lane].set(jnp.inf), c.saved_ys),
+            done=_set_row(c.done, c.lane_sample[lane], finals),
+            lane_sample=c.lane_sample.at[lane].set(following),
+            head=following + 1,
         )
 
-    def refill(c):
+    def refill(c: _LoopState) -> _LoopState:
         """Every lane whose sample has stopped, while samples are waiting."""
 
         def waiting(c):
-            return jnp.any(~running(c)) & (c["head"] < batch)
+            return jnp.any(~running(c)) & (c.head < batch)
 
         return jax.lax.while_loop(waiting, retire_and_start, c)
 
-    def retire_all(c):
+    def retire_all(c: _LoopState) -> _Finals:
         """The results of the samples still in their lanes (stopped once no
         sample waits, and kept there), stored at once."""
-        finals = dict(
-            saved_ys=with_end_state(c["saved_ys"], c["next_time"], c["y"]),
-            tprev=c["tprev"],
-            result=jnp.where(unfinished(c), MAX_STEPS_REACHED, c["result"]),
-            mask=c["mask"],
-            controller_state=c["controller_state"],
-            num_steps=c["num_steps"],
-            next_time=c["next_time"],
+        s = c.samples
+        finals = _Finals(
+            saved_ys=with_end_state(c.saved_ys, s.next_time, s.y),
+            tprev=s.tprev,
+            result=results_where(unfinished(c), RESULTS.max_steps_reached, s.result),
+            mask=s.mask,
+            controller_state=s.controller_state,
+            num_steps=s.num_steps,
+            next_time=s.next_time,
         )
-        return _set_row(c["done"], c["sample"], finals)
+        assert c.done is not None
+        return _set_row(c.done, c.lane_sample, finals)
 
     if queued:
         carry = refill(carry)
     c = jax.lax.while_loop(lambda c: jnp.any(running(c)), body, carry)
     if queued:
         done = retire_all(c)
-        slot, tprev, saved_ys = done["next_time"], done["tprev"], done["saved_ys"]
-        result, mask, state = done["result"], done["mask"], done["controller_state"]
-        num_steps = done["num_steps"]
     else:
-        result = jnp.where(unfinished(c), MAX_STEPS_REACHED, c["result"])
-        slot, tprev, mask, num_steps = (
-            c["next_time"],
-            c["tprev"],
-            c["mask"],
-            c["num_steps"],
+        s = c.samples
+        done = _Finals(
+            saved_ys=with_end_state(c.saved_ys, s.next_time, s.y),
+            tprev=s.tprev,
+            result=results_where(unfinished(c), RESULTS.max_steps_reached, s.result),
+            mask=s.mask,
+            controller_state=full_state(c),
+            num_steps=s.num_steps,
+            next_time=s.next_time,
         )
-        saved_ys = with_end_state(c["saved_ys"], slot, c["y"])
-        state = full_state(c)
+    slot, tprev = done.next_time, done.tprev
     slots = jnp.arange(n_times + 1, dtype=slot.dtype)[None, :]
     saved_ts = jnp.concatenate([ts, jnp.full((batch, 1), jnp.inf, ts.dtype)], 1)
     saved_ts = jnp.where(slots < slot[:, None], saved_ts, jnp.inf)
     saved_ts = jnp.where(slots == slot[:, None], tprev[:, None], saved_ts)
-    return Outcome(saved_ts, saved_ys, result, mask, state, num_steps)
+    return Outcome(
+        saved_ts, done.saved_ys, done.result, done.mask, done.controller_state,
+        done.num_steps,
+    )  # fmt: skip
 
 
-def _interpolation(solver, dense) -> Callable:
+def _interpolation(
+    solver: diffrax.AbstractSolver, dense: dict[str, PyTree[Array]]
+) -> Callable:
     """`evaluate(dense, t0, t1, t)`: the solver's dense output of each sample's step
     from `t0` to `t1`, at its own `t`; `dense`: the step's `y0`, `y1` and stage
     increments `k`.
@@ -481,17 +566,16 @@ def _interpolation(solver, dense) -> Callable:
     sample are the gradient of the interpolant with respect to $y_0$, $y_1$ and the
     $k_i$ (`vmap`-ed over the samples, a few numbers each), and the sum runs on the
     whole batch: `vmap` of the interpolant itself contracts each sample's stages on
-    its own, three times slower in `benchmarks/loop.py`'s batch loop. (The
-    interpolant of the unit vectors gives the same coefficients, but through a
-    dot product with the identity, which XLA's CPU backend hands to a matrix
-    kernel: about 7 us of each save of 128 samples, where the gradient's products
-    fuse.)"""
+    its own, slower in `benchmarks/loop.py`'s batch loop. (The interpolant of
+    the unit vectors gives the same coefficients, but through a dot product with
+    the identity, which XLA's CPU backend hands to a matrix kernel, where the
+    gradient's products fuse.)"""
     stages = jax.tree.leaves(dense["k"])[0].shape[0]
     dtype = jax.tree.leaves(dense["y0"])[0].dtype
 
     def coefficients(t0, t1, t):
         def value(basis):
-            return solver.interpolation_cls(t0=t0, t1=t1, **basis).evaluate(t)
+            return dense_interpolation(solver, t0, t1, **basis).evaluate(t)
 
         zero = jnp.zeros((), dtype)
         c = jax.grad(value)(dict(y0=zero, y1=zero, k=jnp.zeros(stages, dtype)))
@@ -523,30 +607,38 @@ def _interpolation(solver, dense) -> Callable:
     return evaluate
 
 
-def _save_outputs(solver, dense, c, accepted, ts, rows, n_times) -> dict:
-    """The output times inside the step just accepted, from the solver's dense
-    output, written sample by sample (diffrax's `SaveAt(ts)`)."""
+def _save_outputs(
+    solver: diffrax.AbstractSolver,
+    dense: dict[str, PyTree[Array]],
+    step: tuple[Float[Array, " width"], Float[Array, " width"]],
+    saves: tuple[Int[Array, " width"], PyTree[Array]],
+    accepted: Bool[Array, " width"],
+    ts: Float[Array, "width times"],
+    rows: Int[Array, " width"],
+    n_times: int,
+) -> tuple[Int[Array, " width"], PyTree[Array]]:
+    """The output times inside the step just accepted (`step`: each sample's start
+    and end), from the solver's dense output, written sample by sample (diffrax's
+    `SaveAt(ts)`) into `saves`: each sample's next output and the outputs."""
     evaluate = _interpolation(solver, dense)
+    t_start, t_end = step
 
     def due(state):
         index = state[0]
         t = jnp.take_along_axis(ts, jnp.minimum(index, n_times - 1)[:, None], 1)[:, 0]
-        return accepted & (index < n_times) & (t <= c["tnext"]), t
+        return accepted & (index < n_times) & (t <= t_end), t
 
     def save(state):
         index, saved_ys = state
         now, t = due(state)
-        y = evaluate(dense, c["tprev"], c["tnext"], t)
+        y = evaluate(dense, t_start, t_end, t)
         slot_now = jnp.where(now, index, n_times + 1)  # out of range: not written
         saved_ys = jax.tree.map(
             lambda b, v: b.at[rows, slot_now].set(v, mode="drop"), saved_ys, y
         )
-        step = now.astype(index.dtype)
-        return index + step, saved_ys
+        return index + now.astype(index.dtype), saved_ys
 
     def pending(state):
         return jnp.any(due(state)[0])
 
-    state = (c["next_time"], c["saved_ys"])
-    state = jax.lax.while_loop(pending, save, state)
-    return dict(zip(("next_time", "saved_ys"), state))
+    return jax.lax.while_loop(pending, save, saves)

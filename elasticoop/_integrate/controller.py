@@ -106,11 +106,21 @@ class StopFailedSteps(AbstractStepRecorder):
     ) -> StepRecord:
         return state._replace(history=steps)
 
-    def wrap(self, direction):
+    def wrap(self, direction: Any) -> "StopFailedSteps":
         controller = self.controller.wrap(direction)
         return eqx.tree_at(lambda c: c.controller, self, controller)
 
-    def init(self, terms, t0, t1, y0, dt0, args, func, error_order):
+    def init(
+        self,
+        terms: Any,
+        t0: Any,
+        t1: Any,
+        y0: PyTree,
+        dt0: Any,
+        args: Any,
+        func: Any,
+        error_order: Any,
+    ) -> tuple[Any, StepRecord]:
         t_next, state = self.controller.init(
             terms, t0, t1, y0, dt0, args, func, error_order
         )
@@ -125,21 +135,30 @@ class StopFailedSteps(AbstractStepRecorder):
             jnp.array(0, jnp.int32), times, times, jax.tree.map(slots, y0, 1, 0)
         )
         history = None
-        if self.layout is not None:
+        layout = self.layout
+        if layout is not None:
             # (a spare row after the last, where a finished sample of the batch
             # loop writes once it has taken `max_steps` steps)
-            times = slots(t0, self.layout.max_steps + 1, jnp.inf)
+            times = slots(t0, layout.max_steps + 1, jnp.inf)
             history = AcceptedSteps(
                 steps.n_accepted,
                 times,
                 times,
-                jax.tree.map(lambda y: slots(y, self.layout.spare + 1, 0), y0),
+                jax.tree.map(lambda y: slots(y, layout.spare + 1, 0), y0),
             )
         return t_next, StepRecord(state, jnp.array(False), t0, steps, history)
 
     def adapt_step_size(
-        self, t0, t1, y0, y1_candidate, args, y_error, error_order, controller_state
-    ):
+        self,
+        t0: Any,
+        t1: Any,
+        y0: PyTree,
+        y1_candidate: PyTree,
+        args: Any,
+        y_error: PyTree,
+        error_order: Any,
+        controller_state: StepRecord,
+    ) -> tuple[Any, Any, Any, Any, StepRecord, Any]:
         keep, next_t0, next_t1, made_jump, state, result = (
             self.controller.adapt_step_size(
                 t0, t1, y0, y1_candidate, args, y_error, error_order,
@@ -160,7 +179,7 @@ class StopFailedSteps(AbstractStepRecorder):
         def put_last(buffer, value):
             return jnp.where(keep, value[None], buffer)
 
-        n_accepted = controller_state.steps.n_accepted + keep.astype(jnp.int32)
+        n_accepted = controller_state.steps.n_accepted + jnp.asarray(keep, jnp.int32)
         steps = AcceptedSteps(
             n_accepted,
             *jax.tree.map(put_last, controller_state.steps[1:], (t0, t1, y0)),
@@ -171,10 +190,10 @@ class StopFailedSteps(AbstractStepRecorder):
             # Every step writes the slots after the accepted ones: a rejected step
             # is tried again from the same start, and the accepted one overwrites
             # them. (A write that first reads the slot, `where(keep, new, old)`,
-            # made XLA's CPU runtime hand part of each step to its thread pool:
-            # 6 ms more of a 13 ms forward run of the default scenario.) The slot
-            # is the record's own count (the last-step record's count made the
-            # forward half of a gradient 2 ms slower, 13 against 11 ms). In the
+            # made XLA's CPU runtime hand part of each step to its thread pool,
+            # a slower forward run.) The slot is the record's own count (the
+            # last-step record's count made the forward half of a gradient
+            # slower). In the
             # batch loop a finished sample goes on writing past its last step
             # (its count runs ahead of the frozen one): nothing reads there, and
             # past `max_steps` it writes the spare row.

@@ -3,13 +3,10 @@
 `rms_norm` has the value (to rounding: the sum's order differs) and the derivative
 of diffrax's default error norm (`optimistix.rms_norm`, the root mean square of the
 entries), with the sum of the squares written as additions of halves instead of a
-dot product (`fused_sums.py`). Under `vmap` (the
-batch loop of `run_study`) XLA's CPU backend compiles that dot product of short
-vectors, batched, to a library kernel with a large fixed cost: on a 2-core x86_64
-CPU it took about 33 us of each step of 128 samples of 38 entries, against 26 us
-for the vector field's main loop at one stage, and `python benchmarks/montecarlo.py`
-(both cores) ran 4096 samples in 4.96-4.99 s with it and 4.62-4.63 s with
-`rms_norm`.
+dot product (`fused_sums.py`). Under `vmap` (the batch loop) XLA's CPU backend
+compiles that dot product of short vectors, batched, to a library kernel with a
+large fixed cost, comparable to a stage of the vector field
+(`benchmarks/montecarlo.py`, `benchmarks/loop.py`).
 """
 
 import math
@@ -43,7 +40,9 @@ def _root_sum_squares(x: Array) -> Scalar:
 
 
 @_root_sum_squares.defjvp
-def _root_sum_squares_jvp(primals, tangents):
+def _root_sum_squares_jvp(
+    primals: tuple[Array], tangents: tuple[Array]
+) -> tuple[Array, Array]:
     (x,), (tx,) = primals, tangents
     out = _root_sum_squares(x)
     degenerate = (out == 0) | jnp.isinf(out)

@@ -18,23 +18,19 @@ most 64, one unit in the last place), once per run.
 
 Why not diffrax's root finder: it is part of the solve, so under `jax.grad` its
 implicit derivative is traced, transposed and compiled with it, and the dense
-output of each step is kept for it through the loop. Measured on
-the default scenario (2-core CPU, the two versions in one process, their runs
-interleaved): a `vmap` over 64 runs took 12.8 ms per run without it against 14.1
-ms with it, and tracing plus compiling took 3.9 s against 4.3 s for one run, 4.4-5.4
-s against 5.0-5.6 s for the `vmap`, and 8.7-18.8 s against 11.6-18.9 s for a
-reverse-mode gradient. The crossing time is not differentiated: a run
-that stops early has NaN outputs after it, so a loss over it has no gradient to
-give. The interpolant is one order below the solver's own (its error is $O(h^4)$
-in the step $h$); the event times of `tests/test_errors.py` (a uniform spin and a
-sinusoidal collapse, against their closed forms) agree to 1e-8 as before.
+output of each step is kept for it through the loop: runs, their compilation and
+that of their gradients take longer with it. The crossing time is not
+differentiated: a run that stops early has NaN outputs after it, so a loss over it
+has no gradient to give. The interpolant is one order below the solver's own (its
+error is $O(h^4)$ in the step $h$); the event times of `tests/test_errors.py` (a
+uniform spin and a sinusoidal collapse, against their closed forms) agree to 1e-8.
 
 The start $(t_0, Y_0, \\dot Y_0)$ of the last step is kept by the step-size
 controller (`StepRecord`).
 """
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 import equinox as eqx
 import jax
@@ -43,6 +39,8 @@ import optimistix as optx
 from jaxtyping import Array, Bool
 
 from .._custom_types import Scalar, State
+
+_T = TypeVar("_T")
 
 # bisection of the step in which a condition fell to zero (see the docstring);
 # optimistix's `norm` is a class variable, which mypy takes for a field
@@ -121,6 +119,6 @@ def locate_event(
     return t_event, *hermite(t_event, t0, t1, *start, *end)
 
 
-def _without_gradient(tree):
+def _without_gradient(tree: _T) -> _T:
     arrays, rest = eqx.partition(tree, eqx.is_inexact_array)
     return eqx.combine(jax.lax.stop_gradient(arrays), rest)

@@ -1,21 +1,22 @@
 """What a solve of `simulate` returns (`Outcome`), from diffrax's loop or the batch
-loop, and the integers of diffrax's `RESULTS` it holds."""
+loop."""
 
 from typing import Any
 
 import diffrax
 import equinox as eqx
+import jax
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
 
-def result_code(result: Any) -> int:
-    """The integer of one of diffrax's `RESULTS`, as `Outcome.result` holds it."""
-    return int(result._value)
-
-
-SUCCESSFUL = result_code(diffrax.RESULTS.successful)
-EVENT_OCCURRED = result_code(diffrax.RESULTS.event_occurred)
-MAX_STEPS_REACHED = result_code(diffrax.RESULTS.max_steps_reached)
+# (`Any`: a type checker takes the items of an `equinox.Enumeration` for strings)
+def results_where(pred: Bool[Array, "*batch"], a: Any, b: Any) -> Any:
+    """`diffrax.RESULTS.where` of a batch: `a` where `pred`, else `b`, sample by
+    sample (each of `a`, `b` one item or a batch of them)."""
+    if pred.ndim == 0:
+        return diffrax.RESULTS.where(pred, a, b)
+    axes = [0 if jax.tree.leaves(x)[0].ndim else None for x in (a, b)]
+    return jax.vmap(results_where, in_axes=(0, *axes))(pred, a, b)
 
 
 class Outcome(eqx.Module):
@@ -26,7 +27,7 @@ class Outcome(eqx.Module):
 
     ts: Float[Array, "*batch saves"]
     ys: PyTree[Array]
-    result: Int[Array, "*batch"]
+    result: diffrax.RESULTS
     event_mask: tuple[Bool[Array, "*batch"], ...]
     controller_state: PyTree
     num_steps: Int[Array, "*batch"]

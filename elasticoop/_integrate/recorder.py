@@ -81,10 +81,9 @@ class AbstractStepRecorder(diffrax.AbstractAdaptiveStepSizeController):
     """A step-size controller that can keep the accepted steps in its state, what
     `StepwiseAdjoint` needs of `integrate`'s controller.
 
-    (Kept by the controller rather than by diffrax's `SaveAt(steps=True)`: on the
-    default scenario the forward half of a gradient took 18-20 ms that way, 13-15
-    ms this way, as much as a forward run that keeps nothing; see the README's
-    Performance section.)"""
+    (Kept by the controller rather than by diffrax's `SaveAt(steps=True)`, which
+    makes the forward half of a gradient slower; this way it costs about as much
+    as a forward run that keeps nothing: `benchmarks/gradients.py`.)"""
 
     @abc.abstractmethod
     def recording(self, layout: StepLayout) -> "AbstractStepRecorder":

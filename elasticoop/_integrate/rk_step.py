@@ -15,8 +15,7 @@ weights $e_j$, $c_i$), the arithmetic of diffrax's Runge-Kutta step for each sam
 What differs is how the sums over stages are written: elementwise, term by term in
 the tableau's order, instead of diffrax's dot product of the stage buffer with the
 tableau's row. On the CPU the dot products and what they feed cost more than the
-stages' arithmetic itself (`benchmarks/loop.py`: the batch loop took 1.27-1.34
-times the right-hand side alone, 1.58-1.62 with the dot products), and a dot
+stages' arithmetic itself (`benchmarks/loop.py`), and a dot
 product with the row of a tableau fuses each product into its sum (FMA), where
 XLA's elementwise code rounds the product first. So the results equal diffrax's
 step to rounding (about one unit in the last place a stage), not bitwise.
@@ -28,9 +27,7 @@ input sums only that stage's terms with a nonzero coefficient, in a branch of a
 `lax.switch` on the stage (so a value left in the buffer by an earlier step never
 enters). Before, every stage summed all the buffer's rows, masking those not yet
 of this step: Dopri8's 13 stages then took 169 terms a step where 91 are
-nonzero, and a Monte Carlo batch of it 1.58-1.77 against 1.34-1.35 ms per
-trajectory (`benchmarks/montecarlo.py`'s study at rtol 1e-9, 1024 samples, one
-device; Tsit5 within noise, 2.16-2.17 against 2.17-2.21 ms).
+nonzero (`benchmarks/montecarlo.py`).
 """
 
 from collections.abc import Callable

@@ -7,9 +7,12 @@ keeps doing so on one run, but when `jax.vmap` batches it, it integrates the who
 batch in one loop instead of `vmap`-ing diffrax's (`jax.custom_batching.custom_vmap`;
 the loop and why: `batch_loop.py`).
 
-Not differentiable (nor under `jax.jacfwd`): use it for forward runs of batches
-(Monte Carlo), not for gradients. Explicit Runge-Kutta solvers only; with another
-solver, or with a progress meter, `batch_loop` falls back on `vmap` of diffrax.
+With `StepwiseAdjoint` the batch loop is the forward solve and the adjoint
+(`adjoint.py`) differentiates it in reverse mode (its forward half under `vmap`
+runs in the batch loop too, all samples at once). With a diffrax adjoint the batch
+loop is not differentiable (forward or reverse mode): there it is for forward runs
+of batches only. Explicit Runge-Kutta solvers only; with another solver, or with a
+progress meter, `batch_loop` falls back on `vmap` of diffrax.
 """
 
 from collections.abc import Callable, Sequence
@@ -25,7 +28,7 @@ from .._custom_types import Scalar
 from .adjoint import StepwiseAdjoint, check_solver, stepwise_solve
 from .batch_loop import batch_solve
 from .outcome import Outcome
-from .recorder import AbstractStepRecorder
+from .recorder import AbstractStepRecorder, AcceptedSteps
 
 
 class _Setup(eqx.Module):
@@ -54,13 +57,17 @@ def integrate(
     ),
     progress_meter: diffrax.AbstractProgressMeter = diffrax.NoProgressMeter(),
     batch_loop: bool | int = False,
+    fallback: bool = False,
 ) -> Outcome:
     """Integrate $dy/dt = $ `vector_field(t, y, args)` from `ts[0]` to `ts[-1]`,
     saving at `ts` and at the end, stopping where one of `conditions` (functions of
     $t$, $y$, `args`) falls from positive to non-positive (at the end of that
     step). `batch_loop`: under `jax.vmap`, one loop for the batch (see the module's
     docstring); an integer: at most that many samples at once, the others each
-    starting as one stops."""
+    starting as one stops. `fallback`: with `StepwiseAdjoint`, a gradient with
+    respect to what it does not differentiate (output times, `dt0`, the
+    controller) is taken by diffrax's `RecursiveCheckpointAdjoint` instead of
+    refused."""
     if isinstance(adjoint, StepwiseAdjoint):
         check_solver(solver)
         if not isinstance(controller, AbstractStepRecorder):
@@ -75,7 +82,9 @@ def integrate(
     if conditions:
         event = diffrax.Event([_of_diffrax(c) for c in conditions], direction=False)
 
-    def run(arrays, keep_steps: bool = False):
+    def run(
+        arrays: Any, keep_steps: bool = False
+    ) -> tuple[Outcome, AcceptedSteps | None]:
         """The solve, and with `keep_steps` its `AcceptedSteps` (for
         `StepwiseAdjoint`, kept by the controller), else `None`."""
         setup = eqx.combine(arrays, static)
@@ -109,7 +118,7 @@ def integrate(
         outcome = Outcome(
             sol.ts,
             sol.ys,
-            sol.result._value,
+            sol.result,
             () if event is None else tuple(sol.event_mask),
             state,
             jnp.asarray(sol.stats["num_steps"], jnp.int32),
@@ -122,12 +131,13 @@ def integrate(
         and isinstance(progress_meter, diffrax.NoProgressMeter)
     )
 
-    def run_batch(arrays, batched):
+    def run_batch(arrays: Any, batched: Any) -> tuple[Outcome, AcceptedSteps]:
         """`run(arrays, keep_steps=True)` of a batch (`batched`: whether each leaf
         of `arrays` is), in the batch loop (for `StepwiseAdjoint` under `vmap`:
         the loop writes the record of the steps in place, where `vmap` of
         diffrax's loop copies it at each step)."""
         assert isinstance(adjoint, StepwiseAdjoint)
+        assert isinstance(solver, diffrax.AbstractERK)  # (`batchable`)
         setup = eqx.combine(arrays, static)
         recorder = setup.controller.recording(adjoint.layout(max_steps))
         recording = eqx.tree_at(lambda s: s.controller, setup, recorder)
@@ -141,50 +151,77 @@ def integrate(
         steps, state = recorder.accepted_steps(out.controller_state)
         return eqx.tree_at(lambda o: o.controller_state, out, state), steps
 
-    def diffrax_solve(arrays):
-        if isinstance(adjoint, StepwiseAdjoint):
-            return stepwise_solve(
-                run,
-                vector_field,
-                solver,
-                adjoint.layout(max_steps),
-                static,
-                arrays,
-                run_batch if batchable else None,
-            )
-        return run(arrays)[0]
-
     batchable_loop = bool(batch_loop) and batchable
     lanes = None if isinstance(batch_loop, bool) else int(batch_loop)
-    if not batchable_loop:
-        return diffrax_solve(arrays)
 
-    batchable_solve = jax.custom_batching.custom_vmap(diffrax_solve)
+    def forward(arrays: Any) -> Outcome:
+        """The solve where nothing is differentiated."""
+        return run(arrays)[0]
 
-    @batchable_solve.def_vmap
-    def _batched(axis_size, in_batched, arrays):
-        (batched,) = in_batched
-        axes = jax.tree.map(lambda b: 0 if b else None, batched)
-        out = batch_solve(
-            vector_field, solver, conditions, max_steps, static, arrays, axes, lanes
+    primal: Callable[[Any], Outcome] = forward
+    if batchable_loop:
+        looped = jax.custom_batching.custom_vmap(forward)
+        primal = looped
+
+        @looped.def_vmap
+        def _batched(axis_size, in_batched, arrays):
+            (batched,) = in_batched
+            axes = jax.tree.map(lambda b: 0 if b else None, batched)
+            assert isinstance(solver, diffrax.AbstractERK)  # (`batchable`)
+            out = batch_solve(
+                vector_field, solver, conditions, max_steps, static, arrays, axes, lanes
+            )
+            return out, jax.tree.map(lambda _: True, out)
+
+    if isinstance(adjoint, StepwiseAdjoint):
+        # The batch loop runs the forward solve; the adjoint differentiates it.
+        assert isinstance(solver, diffrax.AbstractERK)  # (`check_solver`)
+        return stepwise_solve(
+            run,
+            vector_field,
+            solver,
+            adjoint.layout(max_steps),
+            static,
+            arrays,
+            run_batch if batchable else None,
+            forward=primal,
+            fallback=_fallback(run) if fallback else None,
         )
-        return out, jax.tree.map(lambda _: True, out)
+    if not batchable_loop:
+        return forward(arrays)
 
     # JAX cannot differentiate `custom_vmap`: say so in the user's terms.
-    solve = jax.custom_jvp(batchable_solve)
+    solve = jax.custom_jvp(primal)
 
     @solve.defjvp
     def _no_derivative(primals, tangents):
         raise ValueError(
-            "simulate(..., batch_loop=True) is not differentiable (forward or "
-            "reverse mode); differentiate with batch_loop=False (the default)"
+            "simulate(..., batch_loop=...) with a diffrax adjoint is not "
+            "differentiable (forward or reverse mode); differentiate with "
+            "batch_loop=False, or with the default adjoint (reverse mode)"
         )
 
     return solve(arrays)
 
 
+def _fallback(run: Callable) -> Callable:
+    """The cotangents of a solve's inputs by diffrax's
+    `RecursiveCheckpointAdjoint` (which `run` uses), for gradients the stepwise
+    adjoint does not take."""
+
+    def cotangents(arrays: Any, grad_outcome: Any) -> Any:
+        ys, pullback = eqx.filter_vjp(lambda a: run(a)[0].ys, arrays)
+        ys_bar = grad_outcome.ys
+        if ys_bar is None:
+            ys_bar = jax.tree.map(jnp.zeros_like, ys)
+        (grads,) = pullback(ys_bar)
+        return grads
+
+    return cotangents
+
+
 def _of_diffrax(condition: Callable) -> Callable:
-    def cond_fn(t, y, args, **_):
+    def cond_fn(t: Any, y: PyTree, args: Any, **_: Any) -> Any:
         return condition(t, y, args)
 
     return cond_fn

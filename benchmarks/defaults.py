@@ -1,0 +1,199 @@
+"""What a user gets without options: `simulate`'s defaults under `vmap` and `grad`.
+
+    python benchmarks/defaults.py [--quick] [--json out.json]
+    taskset -c 0 python benchmarks/defaults.py     # on one core
+
+Three measurements, each ratio from calls timed in turn in one process (best of
+`rounds` rounds), so that slow spells of a shared machine hit both sides alike:
+
+- `vmap`: the user code `jax.jit(jax.vmap(run))` with `run(stiffness)` =
+  `simulate(model with stiffness, ...).y` at `simulate`'s defaults, against a loop
+  of SciPy `solve_ivp` (DOP853, rtol 1e-8, atol 1e-10) over the NumPy right-hand
+  side of `benchmarks/reference.py`, timed on a few samples (in the same rounds as
+  the library's calls) and extrapolated to the batch. Problem: the 3-body
+  `MobileModel` of `benchmarks/montecarlo.py` (object + 2 grasps, 2 connections), 2
+  s, 21 output times, constant lift, a batch of 1024 grasp stiffnesses (12 scalars,
+  log-normal, 20 % scatter). Side by side: the same user code with the settings that
+  were the defaults before (`Tsit5` at rtol 1e-8, `vmap` of diffrax's loop).
+  Accuracy: max |Y - Y_ref| over the outputs of the nominal model, Y_ref by Dopri8
+  at rtol 1e-13, of the defaults and of SciPy's run (the target is the defaults'
+  error no larger than SciPy's).
+- `grad`: `jax.grad` of a trajectory loss (the sum of squared deviations of Y at
+  the 301 output times of `default_scenario()`, 3 s, from a target 1 mm away) with
+  respect to the 24 stiffness and damping parameters, at `simulate`'s defaults,
+  against one forward run (the loss, jitted).
+- `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
+  `vmap`-ped forward run (both at the defaults: the forward run in the batch loop).
+
+At smoke size (`--quick`): 8 samples, 0.2 s, 11 outputs, one round.
+"""
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import reference  # noqa: E402
+from _timing import interleaved_best_times  # noqa: E402
+
+import elasticoop as eo  # noqa: E402
+
+UP = (0.0, np.pi / 2, 0.0)
+# the settings that were `simulate`'s defaults before
+BEFORE = eo.SimulationOptions("tsit5", 1e-8, 1e-10)
+
+
+def three_body():
+    """`benchmarks/montecarlo.py`'s model, initial state and lift."""
+    bodies = [
+        eo.RigidBody(2.0, (0.02, 0.15, 0.16)),
+        eo.RigidBody(0.3, (2e-3, 3e-3, 4e-3)),
+        eo.RigidBody(0.25, (1.5e-3, 2.5e-3, 3e-3)),
+    ]
+    damp = (3.0, 2.5, 2.0, 0.05, 0.04, 0.06)
+    conns = [
+        eo.Connection(0, i, stiffness=(800, 900, 1000, 20, 25, 30), damping=damp)
+        for i in (1, 2)
+    ]
+    y0 = np.array([[0, 0, 1, *UP], [-0.5, 0, 1, *UP], [0.5, 0, 1, *UP]])
+    model = eo.MobileModel(bodies, conns).with_unloaded_state(y0)
+    lift = np.zeros((2, 6))
+    lift[:, 2] = 12.0
+    return model, jnp.asarray(y0), jnp.zeros(y0.shape), lift
+
+
+def vmap_throughput(batch: int, t_end: float, n_out: int, rounds: int, n_scipy: int):
+    model, y0, ydot0, lift = three_body()
+    ts = jnp.linspace(0.0, t_end, n_out)
+    rng = np.random.default_rng(0)
+    scale = np.exp(0.2 * rng.normal(size=(batch, *model.stiffness.shape)))
+    stiffness = jnp.asarray(np.asarray(model.stiffness) * scale)
+
+    def run(stiffness, **settings):
+        m = eqx.tree_at(lambda m: m.stiffness, model, stiffness)
+        return eo.simulate(m, y0, ydot0, ts, forces=lift, **settings).y
+
+    calls = {
+        "default": (jax.jit(jax.vmap(run)), (stiffness,)),
+        "before": (
+            jax.jit(jax.vmap(lambda k: run(k, options=BEFORE, batch_loop=False))),
+            (stiffness,),
+        ),
+    }
+
+    def scipy_loop():
+        """SciPy, one sample after the other, on the first `n_scipy` samples."""
+        for k in stiffness[:n_scipy]:
+            m = eqx.tree_at(lambda m: m.stiffness, model, k)
+            reference.solve_ivp_mobile(
+                m, np.asarray(y0), np.asarray(ydot0), np.asarray(ts), force=lift,
+                rtol=1e-8, atol=1e-10, method="DOP853",
+            )  # fmt: skip
+
+    compile_s = {}
+    for name, (fn, args) in calls.items():
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        compile_s[name] = time.perf_counter() - start
+    # SciPy timed in the same rounds as the two (a loaded machine slows all alike)
+    calls["scipy"] = (scipy_loop, ())
+    times = interleaved_best_times(calls, rounds)
+    scipy_s = times["scipy"] * batch / n_scipy
+
+    # accuracy on the nominal model
+    ref = eo.simulate(
+        model, y0, ydot0, ts, forces=lift,
+        options=eo.SimulationOptions("dopri8", 1e-13, 1e-15),
+    ).y  # fmt: skip
+    scipy_y = reference.solve_ivp_mobile(
+        model, np.asarray(y0), np.asarray(ydot0), np.asarray(ts), force=lift,
+        rtol=1e-8, atol=1e-10, method="DOP853",
+    )  # fmt: skip
+
+    def error(y):
+        return float(np.max(np.abs(np.asarray(y) - np.asarray(ref))))
+
+    errors = {
+        "default": error(eo.simulate(model, y0, ydot0, ts, forces=lift).y),
+        "before": error(
+            eo.simulate(model, y0, ydot0, ts, forces=lift, options=BEFORE).y
+        ),
+        "scipy_dop853_rtol_1e-08": error(scipy_y),
+    }
+    return {
+        "problem": f"3-body MobileModel, {t_end:g} s, {n_out} outputs, batch {batch}",
+        "cores": len(os.sched_getaffinity(0)),
+        "scipy_samples_timed": n_scipy,
+        "scipy_s_extrapolated": scipy_s,
+        "default_s": times["default"],
+        "before_s": times["before"],
+        "default_over_scipy_speedup": scipy_s / times["default"],
+        "before_over_scipy_speedup": scipy_s / times["before"],
+        "compile_s": compile_s,
+        "max_error_nominal": errors,
+        "default_error_at_most_scipy": errors["default"]
+        <= errors["scipy_dop853_rtol_1e-08"],
+    }
+
+
+def gradients(t_index: int | None, width: int, rounds: int):
+    s = eo.default_scenario()
+    ts = s.ts if t_index is None else s.ts[:t_index]
+    params = (s.model.stiffness, s.model.damping)
+
+    def trajectory(params):
+        model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
+        return eo.simulate(model, s.y_init, s.ydot_init, ts, forces=s.forces).y
+
+    target = trajectory(params) + 1e-3
+
+    def loss(params):
+        return jnp.sum((trajectory(params) - target) ** 2)
+
+    scale = 1 + 0.05 * jax.random.uniform(jax.random.key(0), (width, 1, 1))
+    sets = tuple(p[None] * scale for p in params)
+    calls = {
+        "forward": (jax.jit(loss), (params,)),
+        "grad": (jax.jit(jax.grad(loss)), (params,)),
+        "vmap_forward": (jax.jit(jax.vmap(loss)), (sets,)),
+        "vmap_grad": (jax.jit(jax.vmap(jax.grad(loss))), (sets,)),
+    }
+    times = interleaved_best_times(calls, rounds)
+    return {
+        "problem": f"default_scenario(), {float(ts[-1]):g} s, {len(ts)} outputs, "
+        f"24 parameters; vmap over {width} parameter sets",
+        "forward_ms": 1e3 * times["forward"],
+        "grad_ms": 1e3 * times["grad"],
+        "grad_over_forward": times["grad"] / times["forward"],
+        "vmap_forward_ms": 1e3 * times["vmap_forward"],
+        "vmap_grad_ms": 1e3 * times["vmap_grad"],
+        "vmap_grad_over_vmap_forward": times["vmap_grad"] / times["vmap_forward"],
+    }
+
+
+def run(quick: bool = False) -> dict:
+    if quick:
+        vmap = vmap_throughput(8, 0.2, 11, 1, 2)
+        grad = gradients(11, 2, 1)
+    else:
+        vmap = vmap_throughput(1024, 2.0, 21, 3, 16)
+        grad = gradients(None, 8, 5)
+    return {
+        "vmap": vmap,
+        "grad": grad,
+        "targets": "vmap >= 150x SciPy at no larger error; grad <= 4x forward; "
+        "vmap of grad <= 4.5x vmap of forward",
+    }
+
+
+if __name__ == "__main__":
+    from _cli import main
+
+    main(run, __doc__)
