@@ -64,6 +64,8 @@ class IdentifySpec:
     - `initial`: how each experiment's initial state is set (`identify`'s
       `initial`); `None`: `"equilibrium"` for a scenario that starts from its
       equilibrium, `"frozen"` otherwise.
+    - `feedforward`: a pose tracking's feedforward during the fit (`identify`'s
+      `feedforward`): `"frozen"` numbers or `"rest"` (holding the rest state).
     """
 
     fit: tuple[str, ...] = ("stiffness", "damping")
@@ -74,6 +76,7 @@ class IdentifySpec:
     method: str = "levenberg-marquardt"
     init: str = "equation_error"
     initial: str | None = None
+    feedforward: str = "frozen"
 
 
 class Scenario(eqx.Module):

@@ -347,3 +347,41 @@ def test_lengths_in_mm_read_as_metres(files, tmp_path):
     np.testing.assert_allclose(a.y, b.y, rtol=1e-15)
     np.testing.assert_allclose(a.ydot, b.ydot, rtol=1e-15)
     assert float(a.y[0, 0, 2]) == 1.0 and float(a.ydot[0, 0, 2]) == 0.005
+
+
+@pytest.mark.slow  # a fit with sensitivities (compiled as the others)
+def test_stretched_time_axis_is_a_misfit(files, tmp_path):
+    """Old: data over 0-1 s against a scenario over 0-0.5 s were fitted with small
+    standard errors and exit 0 (loss 5.3e6)."""
+    folder, start, truth, _ = files
+    data = measured_csv(truth, tmp_path / "noisy.csv", seed=5)
+    lines = data.read_text().splitlines()
+    stretched = lines[:2] + [
+        ",".join([f"{2 * float(row.split(',')[0]):.6g}", *row.split(",")[1:]])
+        for row in lines[2:]
+    ]
+    data.write_text("\n".join(stretched) + "\n")
+    out = tmp_path / "fit"
+    code = main(["identify", str(start), str(data), *FIT, "-o", str(out), "-q"])
+    assert code == EXIT_MISFIT
+    assert report(out)["status"] == "misfit"
+
+
+@pytest.mark.slow  # a run and a fit with sensitivities
+def test_hold_forces_of_the_truth_with_feedforward_rest(files, tmp_path):
+    """Data of `elasticoop run` of a truth scenario with `feedforward = "hold"`
+    (the grasps held still with the truth's own forces): with `--feedforward rest`
+    the fit recovers the truth at zero loss."""
+    folder, start, _, _ = files
+    truth = tmp_path / "truth_hold.toml"
+    truth.write_text(scenario_text(5.2e3, 4.4e3))
+    run = tmp_path / "run"
+    assert main(["run", str(truth), "-o", str(run), "-q", "--no-plots"]) == 0
+    out = tmp_path / "fit"
+    argv = ["identify", str(start), str(run / "trajectory.nc"), *FIT]
+    assert main([*argv, "--feedforward", "rest", "-o", str(out), "-q"]) == 0
+    r = report(out)
+    assert r["status"] == "converged" and r["feedforward_rule"] == "rest"
+    for name, row in estimates(out).items():
+        assert row["estimate"] == pytest.approx(truth_of(name), rel=1e-3), name
+    assert 'feedforward = "hold"' in (out / "fitted_scenario.toml").read_text()

@@ -119,6 +119,14 @@ def register(subparsers) -> None:
         "data (the first samples) or fitted (estimated with the parameters)",
     )
     parser.add_argument(
+        "--feedforward",
+        choices=("frozen", "rest"),
+        help="a pose tracking's feedforward during the fit: frozen (the numbers of "
+        'the scenario as given, e.g. "hold" of its nominal model; the default) or '
+        "rest (the force that holds the grasps in the rest state of the parameters "
+        "evaluated, recomputed with it; with --initial equilibrium)",
+    )
+    parser.add_argument(
         "--no-velocities",
         action="store_true",
         help="ignore the velocity samples of the data files",
@@ -140,6 +148,7 @@ def fit_settings(scenario, args) -> IdentifySpec:
         "method": args.method,
         "init": args.init,
         "initial": args.initial,
+        "feedforward": args.feedforward,
     }
     given = {k: v for k, v in overrides.items() if v is not None}
     spec = dataclasses.replace(
@@ -232,6 +241,7 @@ def execute(args) -> int:
             progress=not args.quiet,
             options=scenario.options,
             initial=initial,
+            feedforward=spec.feedforward,
             body_names=scenario.names,
         )
     except ValueError as err:
@@ -244,7 +254,7 @@ def execute(args) -> int:
         raise UserError(str(err)) from err
     notes = [renamed(note, result.names, selection.names) for note in result.notes]
     rule = derived_feedforward(scenario)
-    if rule is not None:
+    if rule is not None and spec.feedforward == "frozen":
         numbers = np.asarray(scenario.forces.feedforward)
         notes.append(
             f'the pose tracking\'s feedforward = "{rule}" is what the experimenter '
@@ -257,7 +267,14 @@ def execute(args) -> int:
         )
     result = dataclasses.replace(result, names=selection.names, notes=tuple(notes))
     paths = write_results(
-        scenario, experiments, result, selection, folder, args, initial
+        scenario,
+        experiments,
+        result,
+        selection,
+        folder,
+        args,
+        initial,
+        spec.feedforward,
     )
     say(args, result.report())
     say(args, "wrote " + ", ".join(str(p) for p in paths))
@@ -271,7 +288,12 @@ def execute(args) -> int:
 
 
 def report_data(
-    scenario, result, selection: FitSelection, data_files, initial="frozen"
+    scenario,
+    result,
+    selection: FitSelection,
+    data_files,
+    initial="frozen",
+    feedforward="frozen",
 ) -> dict:
     """The report as a dictionary (written as `report.json`)."""
     unc = result.uncertainty
@@ -291,6 +313,7 @@ def report_data(
         "loss_history": result.loss_history,
         "noise_scale": unc.noise_scale,
         "initial_state_rule": initial,
+        "feedforward_rule": feedforward,
         "stderr_meaningful": result.stderr_meaningful,
         "misfit": None
         if result.misfit is None
@@ -330,7 +353,14 @@ def report_data(
 
 
 def write_results(
-    scenario, experiments, result, selection, folder, args, initial="frozen"
+    scenario,
+    experiments,
+    result,
+    selection,
+    folder,
+    args,
+    initial="frozen",
+    feedforward="frozen",
 ) -> list:
     """Write the fitted scenario (with the fit's initial-state rule `initial`),
     the report and the plots into `folder` as a whole; returns the paths."""
@@ -348,10 +378,11 @@ def write_results(
             header,
             initial=initial,
             initial_state=result.initial_states[0] if result.initial_states else None,
+            freeze_feedforward=feedforward == "frozen",
         ),
         "report.txt": result.report() + "\n",
         "report.json": strict_json(
-            report_data(scenario, result, selection, args.data, initial)
+            report_data(scenario, result, selection, args.data, initial, feedforward)
         ),
     }
     with folder.writing() as staging:

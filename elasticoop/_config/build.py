@@ -608,6 +608,7 @@ class _Builder:
             method=table.method,
             init=table.init,
             initial=table.initial,
+            feedforward=table.feedforward,
         )
         labels = conns[1] if conns is not None else ()
         convention = self.model_table.convention if self.model_table else "zxz"

@@ -45,6 +45,8 @@ METHODS = ("levenberg-marquardt", "lbfgs")
 # identifiable may be held at their start (`_holding_fits`).
 HOLD_TEST_LEVEL = 0.01
 DEFAULT_MAX_ITERATIONS = 100
+# What a pose tracking's feedforward is during a fit (`identify`'s `feedforward`).
+FEEDFORWARD_RULES = ("frozen", "rest")
 
 
 def identify(
@@ -69,6 +71,7 @@ def identify(
     max_relative_stderr: float = 0.5,
     mask=None,
     initial: Validated[str] = "auto",
+    feedforward: Validated[str] = "frozen",
     fit_initial: Validated[str] = "none",
     hold_unidentifiable: Validated[bool] = False,
     misfit_threshold: float = MISFIT_THRESHOLD,
@@ -165,6 +168,16 @@ def identify(
         with `window`, `polyorder`).
       - `"fitted"`: estimated with the parameters (`fit_initial="state"`).
       A note in the result says which rule was applied.
+    - `feedforward`: `"frozen"` (default): the experiments' forces are what the
+      experimenter applied, numbers that do not change with the parameters
+      (e.g. a feedforward the scenario derived from its nominal model with
+      `"hold"`). `"rest"`: for experiments at rest with pose tracking, the
+      feedforward is the force that holds the contact bodies in the rest state
+      of the parameters evaluated, $\\partial\\Pi/\\partial Y_i - G_i$,
+      recomputed with it: right when the manipulators held the grasps still
+      with whatever force that took (as `elasticoop run` of a scenario with
+      `feedforward = "hold"` simulates its own model), wrong when the
+      experimenter commanded the nominal numbers.
     - `fit_initial`: which part of each experiment's initial state is estimated
       together with the parameters: `"none"` (default: `Experiment.y_init` and
       `ydot_init` are known), `"rates"` ($\\dot Y(t_0)$), `"positions"`
@@ -247,9 +260,27 @@ def identify(
             f"misfit_threshold must be a number above 1, got {misfit_threshold!r}"
         )
     check_identifiability_thresholds(rcond, max_relative_stderr)
+    if feedforward not in FEEDFORWARD_RULES:
+        raise ValueError(
+            f"feedforward must be one of {FEEDFORWARD_RULES}, got {feedforward!r}"
+        )
+    if feedforward == "rest":
+        if not rest:
+            raise ValueError(
+                "feedforward='rest' holds the contact bodies in the rest state the "
+                "fit recomputes: it needs experiments at rest (Experiment.rest) "
+                "and initial 'auto' or 'equilibrium'"
+            )
+        notes.append(
+            "the pose tracking's feedforward of each experiment at rest is the force "
+            "that holds its contact bodies in the rest state of the parameters "
+            "evaluated (feedforward = rest), not the experiment's numbers"
+        )
     if init not in ("equation_error", "model"):
         raise ValueError(f"init must be 'equation_error' or 'model', got {init!r}")
-    problem = make_problem(model, free, experiments, options, fit_parts, rest)
+    problem = make_problem(
+        model, free, experiments, options, fit_parts, rest, feedforward == "rest"
+    )
     no_correction = np.zeros(problem.n_initial)
     start = free.current(model)
     candidates = []  # (label, parameters), evaluated by their simulated loss

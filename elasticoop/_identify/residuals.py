@@ -29,7 +29,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Int
 
 from .._analysis import rest_state
-from .._forces import pad_to_bodies
+from .._forces import PoseTracking, pad_to_bodies
+from .._lagrange import elastic_forces
 from .._options import SimulationOptions
 from .._simulate import simulate
 from .experiment import Experiment, batch_experiments
@@ -83,6 +84,10 @@ class FitProblem(eqx.Module):
     # Whether experiments that started at rest (`Experiment.rest`) start from the
     # rest state of the parameters evaluated (recomputed at every evaluation).
     rest: bool = eqx.field(static=True, default=False)
+    # Whether a pose tracking's feedforward of an experiment at rest is the force
+    # that holds its contact bodies in that rest state (recomputed with it),
+    # rather than the experiment's numbers.
+    hold_at_rest: bool = eqx.field(static=True, default=False)
 
     @property
     def n_parameters(self) -> int:
@@ -105,7 +110,13 @@ class FitProblem(eqx.Module):
 
 
 def make_problem(
-    model, free, experiments, options, fit_initial=(False, False), rest=False
+    model,
+    free,
+    experiments,
+    options,
+    fit_initial=(False, False),
+    rest=False,
+    hold_at_rest=False,
 ) -> FitProblem:
     groups = batch_experiments(experiments)
     order = tuple(k for indices, _ in groups for k in indices)
@@ -125,6 +136,7 @@ def make_problem(
         jnp.zeros(free.size, bool),
         jnp.zeros(free.size, jnp.float64),
         bool(rest),
+        bool(rest and hold_at_rest),
     )
     zeros = jnp.zeros(problem.size, jnp.float64)
     return eqx.tree_at(lambda p: (p.u_offset, p.u_scale), problem, (zeros, zeros + 1.0))
@@ -168,15 +180,32 @@ def with_jacobian_loss_limit(problem: FitProblem, limit) -> FitProblem:
 
 
 def _simulate_batch(
-    model, data: _Data, y_init, ydot_init, options: SimulationOptions, adjoint
+    model,
+    data: _Data,
+    y_init,
+    ydot_init,
+    options: SimulationOptions,
+    adjoint,
+    hold_at_rest: bool = False,
 ):
+    hold = (
+        hold_at_rest
+        and data.experiments.rest is not None
+        and isinstance(data.experiments.forces, PoseTracking)
+    )
+
     def one(e: Experiment, y0, ydot0):
+        forces = e.forces
+        if hold:
+            # the feedforward that holds the contact bodies at rest in y0
+            held = (elastic_forces(model, y0) - model.gravity_forces())[1:]
+            forces = eqx.tree_at(lambda f: f.feedforward, forces, held)
         return simulate(
             model,
             y0,
             ydot0,
             e.ts,
-            forces=e.forces,
+            forces=forces,
             adjoint=adjoint,
             throw=False,
             **options.kwargs(),
@@ -260,7 +289,9 @@ def residuals_by_experiment(
     model = fitted_model(u, problem)
     out, ok_all, status, steps = [], [], [], []
     for data, (y0, ydot0) in zip(problem.batches, initial_states(u, problem)):
-        traj = _simulate_batch(model, data, y0, ydot0, problem.options, adjoint)
+        traj = _simulate_batch(
+            model, data, y0, ydot0, problem.options, adjoint, problem.hold_at_rest
+        )
         r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
         if data.ydot is not None and data.ydot_weight is not None:  # set together
             rd = jnp.where(

@@ -19,6 +19,7 @@ def fitted_scenario_text(
     *,
     initial: str = "frozen",
     initial_state=None,
+    freeze_feedforward: bool = True,
 ) -> str:
     """TOML text of `scenario`'s file (`scenario.source`) with the masses,
     inertias and, for a mobile model, the connections' stiffness and damping of
@@ -29,7 +30,8 @@ def fitted_scenario_text(
     What the experiment applied is written as the numbers the fit used: a pose
     tracking's feedforward that the scenario derives from its model (`"hold"`,
     `"weight"`) becomes the table of forces of the scenario as loaded (the
-    nominal model's), so that it does not change with the fitted values. The
+    nominal model's), so that it does not change with the fitted values (unless
+    `freeze_feedforward` is false: the fit recomputed it as the run does). The
     initial state follows the fit's rule `initial`: `"equilibrium"` keeps
     `[initial] from = "equilibrium"` (the run recomputes the rest state with the
     fitted values, as the fit did); otherwise the `[initial]` tables get the
@@ -57,9 +59,14 @@ def fitted_scenario_text(
             connection["stiffness"] = [float(v) for v in stiffness[k]]
             connection["damping"] = [float(v) for v in damping[k]]
     pose = raw.get("forces", {}).get("pose_tracking")
-    if isinstance(pose, dict) and pose.get("feedforward", "weight") in (
-        "hold",
-        "weight",
+    if (
+        freeze_feedforward
+        and isinstance(pose, dict)
+        and pose.get("feedforward", "weight")
+        in (
+            "hold",
+            "weight",
+        )
     ):
         feedforward = np.asarray(scenario.forces.feedforward, dtype=float)
         pose["feedforward"] = {
