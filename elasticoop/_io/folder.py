@@ -439,8 +439,8 @@ class OutputFolder:
         previous = None
         try:
             if os.path.lexists(self.path) and _exchange(complete, self.path):
-                previous = _retagged(complete, "previous")
-                os.rename(complete, previous)
+                # done: the old results are at `complete`'s name, to be removed
+                previous = complete
             else:
                 if os.path.lexists(self.path):
                     previous = _retagged(complete, "previous")
