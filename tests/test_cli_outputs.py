@@ -537,3 +537,33 @@ def test_a_disk_that_fills_while_writing_is_exit_2_not_signal_11(lone_body, smal
     assert "No space left on device" in out.stderr
     assert "Traceback" not in out.stderr
     assert contents(outdir) == before and not hidden(outdir)
+
+
+def test_results_that_cannot_take_the_folder_s_place_are_kept_visibly(
+    lone_body, previous_run, monkeypatch, capsys
+):
+    # (a folder that filled with other files while the run wrote: its results
+    # were kept in a hidden .out.partial-* folder, which a later run removes)
+    from elasticoop._io import folder
+
+    check = folder.OutputFolder.check
+    calls = []
+
+    def changed_meanwhile(self):
+        calls.append(1)
+        if len(calls) == 2:  # the check before the results move into place
+            (self.path / "notes.txt").write_text("mine")
+        return check(self)
+
+    monkeypatch.setattr(folder.OutputFolder, "check", changed_meanwhile)
+    args = ["run", str(lone_body), "-o", str(previous_run), "--no-plots", "-q"]
+    assert main([*args, "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    kept = [p for p in previous_run.parent.iterdir() if ".results-" in p.name]
+    assert len(kept) == 1 and f"the results are kept in {kept[0]}" in err, err
+    assert {p.name for p in kept[0].iterdir()} == RESULTS
+    assert (previous_run / "notes.txt").read_text() == "mine"
+    monkeypatch.setattr(folder.OutputFolder, "check", check)
+    (previous_run / "notes.txt").unlink()
+    assert main([*args, "--overwrite"]) == 0  # a later run leaves them alone
+    assert kept[0].is_dir() and not hidden(previous_run)

@@ -482,3 +482,18 @@ def test_a_file_of_too_many_cells_is_refused_before_it_is_split(
     monkeypatch.setattr(measured_csv, "_rows", None)  # never reached
     with pytest.raises(DataFileError, match="about 6[0-9] cells, over the limit of 40"):
         load_experiment(path, scenario)
+
+
+def test_netcdf_without_a_time_coordinate_is_refused(scenario, tmp_path):
+    # Was: silently read as the sample numbers, t = 0, 1, 2, ... s (xarray's
+    # default index of a dimension without a coordinate).
+    import xarray as xr
+
+    t, y = known_motion()
+    path = netcdf(tmp_path / "run.nc", t, y)
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        no_time = ds.load().drop_vars("time")
+    other = tmp_path / "no_time.nc"
+    no_time.to_netcdf(other, engine="h5netcdf")
+    with pytest.raises(DataFileError, match="column 'time': missing coordinate"):
+        load_experiment(other, scenario)

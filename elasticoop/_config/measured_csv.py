@@ -140,18 +140,19 @@ def _rows(text: str, add) -> list[tuple[int, list[str]]]:
     """`(line number, cells)` of the lines that are neither blank nor comments; a
     line the CSV reader refuses (a cell beyond its field size limit, a stray
     quote) is a problem."""
-    rows = []
+    rows: list[tuple[int, list[str]]] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         try:
-            rows.extend((number, cells) for cells in csv.reader([line], **_DIALECT))
+            rows.extend(
+                (number, cells) for cells in csv.reader([line], skipinitialspace=True)
+            )
         except csv.Error as err:
             add("", f"line {number}", f"not a line of CSV ({err}): {shown(line)}")
     return rows
 
 
-_DIALECT = {"skipinitialspace": True}
 SHOWN_CHARACTERS = 40  # of a cell quoted in a message
 
 

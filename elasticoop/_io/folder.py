@@ -428,19 +428,13 @@ class OutputFolder:
         try:
             self.check()  # the folder may have changed while the results were made
         except OutputFolderError as err:
-            # kept under a name that no later write removes
-            kept = self.path.with_name(f"{self.path.name}.results-{complete.name[-8:]}")
-            try:
-                os.rename(complete, kept)
-            except OSError:
-                kept = complete
+            kept = self._keep(complete)
             raise OutputFolderError(f"{err} (the results are kept in {kept})") from err
-        kept_in = f"the results are kept in {complete}"
         previous = None
         try:
             if os.path.lexists(self.path) and _exchange(complete, self.path):
-                previous = _retagged(complete, "previous")
-                os.rename(complete, previous)
+                # done: the old results are at `complete`'s name, to be removed
+                previous = complete
             else:
                 if os.path.lexists(self.path):
                     previous = _retagged(complete, "previous")
@@ -452,12 +446,25 @@ class OutputFolder:
                         os.rename(previous, self.path)
                     raise
         except OSError as err:
+            kept = self._keep(complete)
             raise OutputFolderError(
-                f"could not move the results into {self.path} ({err}); {kept_in}"
+                f"could not move the results into {self.path} ({err}); the results "
+                f"are kept in {kept}"
             ) from err
         _fsync_folder(self.path.parent)
         if previous is not None:
             shutil.rmtree(previous, ignore_errors=True)
+
+    def _keep(self, complete: pathlib.Path) -> pathlib.Path:
+        """Give results that could not take the folder's place a name beside it
+        that no later write removes (`OUT.results-XXXXXXXX`); returns where they
+        are."""
+        kept = self.path.with_name(f"{self.path.name}.results-{complete.name[-8:]}")
+        try:
+            os.rename(complete, kept)
+        except OSError:
+            return complete
+        return kept
 
 
 def _absolute(text: str) -> pathlib.Path:
