@@ -146,7 +146,7 @@ def per_evaluation(scenario, traj, n_evals: int) -> dict:
     the loop), with a constant cotangent: a loop whose body touches no array of
     more than a state. XLA's CPU runtime runs such a body's operations one after
     the other, and a body that reads the outputs' array as a graph, with hand-offs
-    to its thread pool (the README's Performance section)."""
+    to its thread pool (docs/performance.md)."""
     field = field_of_parameters(scenario)
     times = traj.ts
     states = jax.vmap(_simulate._pack)(traj.y, traj.ydot, traj.work, traj.dissipated)

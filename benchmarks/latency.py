@@ -13,7 +13,9 @@ Wall time of `python -c` importing elasticoop and simulating
 call, in fresh processes: without the persistent compilation cache, with an
 empty cache (cold) and with the cache it filled (warm); two rounds of the three in
 turn, each row the quicker of its two (a process's first seconds are at the mercy
-of a shared machine: one run of the first row measured 5.6 s against 4.6-4.9 s).
+of a shared machine).
+
+`python benchmarks/latency.py --command-line` times the command line alone.
 """
 
 import json

@@ -2,10 +2,13 @@
 notebook, the API reference every public name, the scenario-file page every table
 and key of the schema, and the command-line pages every command and option; the
 Python examples of the getting-started page run. (CI builds the site itself with
-`mkdocs build --strict`, which fails on a broken link or reference.)"""
+`mkdocs build --strict`, which fails on a broken link or reference, and opens its
+pages offline with `.ci/check_site.py`, whose checks are tested here.)"""
 
 import argparse
 import importlib
+import importlib.util
+import json
 import pathlib
 import re
 import types
@@ -195,3 +198,50 @@ def test_getting_started_examples_run():
     assert float(height.min()) > -1e-3
     assert 0.15 < float(height[-1]) < 0.25
     assert abs(float(traj.energy_residual()[-1])) < 1e-6
+
+
+def _check_site():
+    """`.ci/check_site.py`, the offline check CI runs on the built site."""
+    spec = importlib.util.spec_from_file_location(
+        "check_site", ROOT / ".ci" / "check_site.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_site_check_finds_maths_left_as_tex():
+    check = _check_site()
+    rendered = (
+        '<article><p>a spring <span class="arithmatex"><span class="katex">k</span>'
+        "</span> and code <code>$HOME</code></p><pre>\\(x\\)</pre></article>"
+    )
+    assert check.problems_of(rendered) == []
+    raw = (
+        '<article><p><span class="arithmatex">\\(m + 1\\)</span> bodies</p>'
+        '<div class="jp-RenderedMarkdown">$\\theta = \\pi/2$ and $x_i$</div></article>'
+    )
+    found = check.problems_of(raw)
+    assert found[0] == "unrendered formula: '\\\\(m + 1\\\\)'"
+    assert "raw TeX left in the text: '$\\\\theta = \\\\pi/2$'" in found
+    assert "raw TeX left in the text: '$x_i$'" in found
+
+
+def test_site_check_names_the_hosts_a_page_asked_for(tmp_path):
+    """Requests the page made (its origin as initiator) count; the browser's own
+    (no initiator) and the local server's do not."""
+    check = _check_site()
+    start = 7
+    events = [
+        {"type": start, "params": {"url": u, "initiator": i}}
+        for u, i in [
+            ("http://127.0.0.1:8000/index.html", "not an origin"),
+            ("http://127.0.0.1:8000/katex.js", "http://127.0.0.1:8000"),
+            ("https://cdn.jsdelivr.net/katex.css", "http://127.0.0.1:8000"),
+            ("https://accounts.google.com/ListAccounts", "not an origin"),
+        ]
+    ]
+    log = {"constants": {"logEventTypes": {"URL_REQUEST_START_JOB": start}}}
+    text = json.dumps({**log, "events": events})
+    (tmp_path / "net.json").write_text(text[:-2] + ",")  # cut short at exit
+    assert check._hosts_asked(tmp_path / "net.json") == {"cdn.jsdelivr.net"}
