@@ -240,3 +240,32 @@ def test_a_stored_study_extends_with_more_samples_keeping_its_chunks(tmp_path):
     assert ind.attrs["base_samples"] == 32
     with pytest.raises(mc.StoreError, match="holds another study"):
         mc.run_study(_deflection_study(16), store, batch_width=8, progress=False)
+
+
+def test_plots_of_the_indices(ishigami):
+    """Bars, a heat map over time, convergence and Morris plots draw what they are
+    given (one panel per output element)."""
+    from elasticoop import (
+        plot_morris,
+        plot_sobol_convergence,
+        plot_sobol_heatmap,
+        plot_sobol_indices,
+    )
+
+    u, x, _ = ishigami
+    y = _ishigami(x)
+    over_time = np.stack([y * t for t in (0.0, 0.5, 1.0)], axis=1)  # time 0: constant
+    results = _results("saltelli-second-order", x, {"y": y, "series": over_time})
+    results = results.rename({"series_0": "time"}).assign_coords(time=[0.0, 0.5, 1.0])
+    ind = mc.sobol_indices(results, bootstrap=50)
+    assert np.all(np.isnan(ind["ST_series"].isel(time=0).values))  # no variance
+    np.testing.assert_allclose(
+        ind["ST_series"].isel(time=2).values, ind["ST_y"].values, rtol=1e-12
+    )
+    assert len(plot_sobol_indices(ind, "y").axes) == 1
+    assert plot_sobol_heatmap(ind, "series").axes[0].get_xlabel() == "time [s]"
+    conv = mc.sobol_convergence(results, "y", bootstrap=50)
+    assert len(plot_sobol_convergence(conv, "y").axes[0].lines) == 3
+    m = design_points("morris", KEY, 3, 10)
+    eff = mc.morris_effects(_results("morris", m, {"y": m @ [1.0, 2.0, 3.0]}))
+    assert plot_morris(eff, "y").axes[0].get_xlabel() == "$\\mu^*$"

@@ -225,12 +225,31 @@ def _dgsm_only(args, ds, table, study, record, folder, name) -> list:
         bootstrap=table.bootstrap,
         confidence=table.confidence,
     )
-    lines = [f"{name}: DGSM bounds on the total indices ({points} samples)"]
+    lines = [
+        f"{name}: derivative-based measures at {points} points and their bound "
+        f"C nu / Var(Y) on each total index ({100 * table.confidence:g} % intervals)"
+    ]
     for key in measures.data_vars:
-        if str(key).startswith("dgsm_bound_") and str(key).count("_") >= 2:
-            if str(key).startswith(("dgsm_bound_low_", "dgsm_bound_high_")):
-                continue
-            lines.append(f"  {str(key)[11:]}: see dgsm.nc")
+        key = str(key)
+        if not key.startswith("dgsm_bound_") or key.startswith(
+            ("dgsm_bound_low_", "dgsm_bound_high_")
+        ):
+            continue
+        output = key[len("dgsm_bound_") :]
+        bound = measures[key]
+        if "time" in bound.dims:
+            lines.append(f"  {output}: a time series; see dgsm.nc")
+            continue
+        for label, sel in _elements(bound):
+            lines.append(f"  {output}{label}:  factor  bound [low, high]")
+            values = bound.isel(sel).values
+            low = measures[f"dgsm_bound_low_{output}"].isel(sel).values
+            high = measures[f"dgsm_bound_high_{output}"].isel(sel).values
+            for k in np.argsort(-np.nan_to_num(values, nan=-1.0))[:TOP]:
+                lines.append(
+                    f"    {bound['factor'].values[k]:<28} {values[k]:8.3g} "
+                    f"[{low[k]:.3g}, {high[k]:.3g}]"
+                )
     say(args, "\n".join(lines))
     paths = [folder / "dgsm.nc"]
     measures.to_netcdf(paths[0], engine="h5netcdf")

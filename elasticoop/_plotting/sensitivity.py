@@ -4,6 +4,7 @@ Morris screening."""
 
 import numpy as np
 import xarray as xr
+from matplotlib.ticker import NullFormatter
 
 from .montecarlo import _elements, _panels
 
@@ -120,6 +121,8 @@ def plot_sobol_convergence(convergence: xr.Dataset, name: str, top: int = 5):
             )
             line.set_label(str(st["factor"].values[k]))
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xticks(runs, [str(r) for r in runs], rotation=45, fontsize="small")
         ax.set_xlabel("model runs")
         ax.set_ylabel("total index $S_{T,i}$")
         ax.set_title(label or name, fontsize="medium")
