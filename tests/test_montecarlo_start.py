@@ -1,9 +1,11 @@
 """What a study's samples start from: with `initial="equilibrium"` each sample
-starts at rest in the static equilibrium of its own parameters, under the
-commanded forces of the experiment (numbers, the same for every sample).
+starts at rest in its own closed loop: every coordinate free under the force law
+of the experiment (a PoseTracking controller whose feedforward is a number, the
+same for every sample).
 
-Known truth: each sample against `static_equilibrium` and a single `simulate`
-run of its own drawn model; a study whose laws have no spread stays at rest."""
+Known truth: each sample against `closed_loop_rest` and a single `simulate` run
+of its own drawn model, which stays at rest (no lift); a study whose laws have no
+spread stays at its nominal state."""
 
 import equinox as eqx
 import numpy as np
@@ -12,6 +14,7 @@ from helpers import three_body_model, three_body_state
 
 import elasticoop as eo
 from elasticoop import montecarlo as mc
+from elasticoop._analysis import closed_loop_rest
 
 TS = np.linspace(0.0, 0.2, 5)
 HELD = np.zeros((3, 6), dtype=bool)
@@ -32,10 +35,19 @@ def _nominal():
     model = three_body_model()
     y0 = np.asarray(three_body_state())
     eq = eo.static_equilibrium(model, y0, HELD)
-    # the commanded forces: those that hold the grasps of the nominal system at
-    # rest (a scenario's feedforward = "hold"), frozen as numbers
-    hold = np.asarray(eq.reaction)[1:]
-    return model, np.asarray(eq.y), hold
+    # the commanded forces: PD control of the grasps' poses plus a feedforward of
+    # the forces that hold them at rest in the nominal system (a scenario's
+    # feedforward = "hold"), frozen as numbers; no lift
+    y_eq = np.asarray(eq.y)
+    control = eo.PoseTracking(
+        y_ref=y_eq[1:],
+        feedforward=np.asarray(eq.reaction)[1:],
+        kp=(400.0, 400.0, 400.0, 5.0, 5.0, 5.0),
+        kd=(20.0, 20.0, 20.0, 0.1, 0.1, 0.1),
+        height=0.0,
+        duration=1.0,
+    )
+    return model, y_eq, control
 
 
 def _study(mass_std=0.1, stiffness_std=0.2, **kwargs):
@@ -76,8 +88,10 @@ def results():
 
 @pytest.mark.slow
 def test_each_sample_starts_at_rest_in_its_own_equilibrium(results):
-    """Before, every sample started from the nominal state: the drawn samples
-    started away from their rest (the study measured its start)."""
+    """Before, every sample started from the nominal state, or with its grasps
+    held at their commanded poses, where the frozen feedforward does not balance
+    the drawn sample's reactions: it moved at once (the study measured its
+    start). Now each sample stays at its start."""
     study, ds = results
     model, y_eq, hold = _nominal()
     assert np.all(ds["status"].values == 0)
@@ -88,15 +102,25 @@ def test_each_sample_starts_at_rest_in_its_own_equilibrium(results):
             model,
             (ds["mass"].values[k], ds["stiffness"].values[k]),
         )
-        y_k = np.asarray(eo.static_equilibrium(drawn, y_eq, HELD, hold).y)
+        y_k = np.asarray(closed_loop_rest(drawn, y_eq, hold))
         np.testing.assert_allclose(starts[k], y_k, rtol=0, atol=START_ATOL)
-        # the object sits elsewhere than the nominal one: the start follows the draw
+        # the object and the grasps sit elsewhere than the nominal ones: the
+        # start follows the draw
         assert np.abs(y_k[0] - y_eq[0]).max() > 1e-4
+        assert np.abs(y_k[1:] - y_eq[1:]).max() > 1e-5
         single = eo.simulate(
             drawn, y_k, np.zeros((3, 6)), TS, forces=hold, rtol=1e-10, atol=1e-12
         )
         np.testing.assert_allclose(
             ds["trajectory"].values[k], single.y, rtol=0, atol=START_ATOL
+        )
+        # no lift: the sample stays at its start
+        assert np.abs(np.asarray(single.ydot)).max() < START_ATOL
+        np.testing.assert_allclose(
+            ds["trajectory"].values[k],
+            np.broadcast_to(y_k, single.y.shape),
+            rtol=0,
+            atol=START_ATOL,
         )
 
 
@@ -129,6 +153,21 @@ def test_the_start_rule_is_checked_and_recorded():
         )
     with pytest.raises(ValueError, match="Study.initial must be one of"):
         _study(initial="rest")
+    # constant forces (the controller's feedforward alone) do not hold the
+    # grasps: the whole system is free to drift, with no isolated rest state
+    model, y_eq, control = _nominal()
+    with pytest.raises(ValueError, match="no closed-loop rest state.*singular"):
+        mc.Study(
+            model,
+            y_eq,
+            np.zeros((3, 6)),
+            TS,
+            forces=np.asarray(control.feedforward),
+            parameters=study.parameters,
+            outputs={"trajectory": mc.trajectory()},
+            n_samples=2,
+            initial="equilibrium",
+        )
 
 
 def test_solver_settings_are_one_options_object():

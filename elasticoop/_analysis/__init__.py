@@ -1,3 +1,8 @@
+from .closed_loop_rest import (
+    closed_loop_residual as closed_loop_residual,
+    closed_loop_rest as closed_loop_rest,
+    closed_loop_stiffness as closed_loop_stiffness,
+)
 from .equilibrium import (
     Equilibrium as Equilibrium,
     static_equilibrium as static_equilibrium,

@@ -108,8 +108,8 @@ def _run_batch(study: Study, mesh: Mesh, index, strata, started, batch_width: in
     # `simulate(..., batch_loop=batch_width)`), not waiting for the other devices.
     # Where `started` is false (the padding of a last chunk) the sample stops at
     # its first step. The samples' rest states (`initial="equilibrium"`) are
-    # solved before, outside the `shard_map` (optimistix's BFGS does not trace
-    # inside one), split over the devices as the samples are.
+    # solved before, outside the `shard_map` (optimistix's solvers are kept
+    # out of it), split over the devices as the samples are.
     arrays, static = eqx.partition(study, eqx.is_array)
     if study.initial == "equilibrium":
         starts = jax.vmap(jax.vmap(partial(sample_start, study)))(index, strata)

@@ -12,9 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._analysis import contact_bodies_held, rest_state
-from .._forces import check_force, force_admissible, pad_to_bodies
+from .._analysis import closed_loop_rest, closed_loop_stiffness
+from .._forces import check_force, force_admissible
 from .._models import AbstractElasticModel, MobileModel
+from .._models.base import RANK_RTOL
 from .._naming import (
     body_names as checked_body_names,
     connection_names,
@@ -81,20 +82,26 @@ class Study(eqx.Module):
     - `initial`: what each sample starts from.
       `"given"` (the default): `y_init` and `ydot_init`, the same for every sample
       (unless they are parameters).
-      `"equilibrium"`: each sample starts at rest in its own static equilibrium:
-      the object's pose solves $\\partial\\Pi/\\partial Y = G + F$ with the
-      sample's parameters (`rest_state`), the contact bodies held at their poses
-      in `y_init` (the commanded poses), $F$ the sample's applied forces at rest
-      at the start. The applied forces are facts of the experiment: a feedforward
-      computed from the nominal system (a scenario's `feedforward = "hold"`) stays
-      the number it is, so a sample whose parameters differ starts at rest, while
-      its grasps feel the commanded forces of the experiment. `y_init` is the
-      start of the solver (best: the nominal rest state), `ydot_init` must be
-      zero. A sample without a rest state (the solver does not converge) fails
-      with `Status.NONFINITE`. Use it whenever the study varies what the start
-      depends on (masses, stiffnesses, rest lengths, gravity): with `"given"`,
-      a sample other than the nominal one starts away from its rest, and its
-      outputs include that start-up transient.
+      `"equilibrium"`: each sample starts at rest in its own closed loop: every
+      coordinate (the object's and the contact bodies') solves
+      $\\partial\\Pi/\\partial Y = G + F(t_0, Y, 0)$ with the sample's
+      parameters and its force law $F$ at rest at the first time
+      (`closed_loop_rest`). The force law is a fact of the experiment: a
+      feedforward computed from the nominal system (a scenario's
+      `feedforward = "hold"`) stays the number it is, and a sample whose
+      parameters differ settles where its controller's forces balance its own
+      grasps' reactions (the grasps a little off their commanded poses), so it is
+      at rest in the simulation from its first step: its outputs measure what
+      the experiment does (a lift), not a start-up transient. The force law must
+      hold the contact bodies (e.g. `PoseTracking` with positive gains; with
+      constant forces there is no isolated rest state: a `ValueError`).
+      `y_init` is the start of the solver (best: the nominal rest state), and
+      neither it nor `ydot_init` (which must be zero) may be a parameter. A
+      sample without a rest state (the solver does not converge) fails with
+      `Status.NONFINITE`. Use it whenever the study varies what the start
+      depends on (masses, stiffnesses, rest lengths, gravity, gains): with
+      `"given"`, a sample other than the nominal one starts away from its rest,
+      and its outputs include that start-up transient.
     - `options`: a `SimulationOptions` (solver, tolerances, step budget and
       singularity thresholds of every sample; default `SimulationOptions()`,
       Tsit5 at rtol 1e-8, atol 1e-10).
@@ -206,18 +213,32 @@ class Study(eqx.Module):
                 "sample starts at rest)"
             )
         for p in self.parameters:
-            if p.target == "ydot_init":
+            if p.target in ("y_init", "ydot_init"):
                 raise ValueError(
-                    f"Parameter {p.name!r} varies ydot_init, but with "
-                    f"initial='equilibrium' every sample starts at rest"
+                    f"Parameter {p.name!r} varies {p.target}, but with "
+                    f"initial='equilibrium' every sample starts at rest, its "
+                    f"initial state solved for"
                 )
-        y = _rest(self.inputs, jnp.asarray(self.ts[0]), self.inputs.y_init)
-        if not np.all(np.isfinite(np.asarray(y))):
+        t0 = jnp.asarray(self.ts[0])
+        singular = False
+        y = _rest(self.inputs, t0, self.inputs.y_init)
+        if np.all(np.isfinite(np.asarray(y))):
+            k = closed_loop_stiffness(self.inputs.model, y, self.inputs.forces, t0)
+            sv = np.linalg.svd(np.asarray(k), compute_uv=False)
+            singular = bool(sv.min() <= RANK_RTOL * sv.max())
+        if not np.all(np.isfinite(np.asarray(y))) or singular:
             raise ValueError(
-                "Study(initial='equilibrium'): the nominal system has no rest state "
-                "with the contact bodies held at their poses in y_init (the static "
-                "equilibrium solver did not converge from y_init); start y_init "
-                "nearer to it, or use initial='given'"
+                "Study(initial='equilibrium'): the nominal system has no "
+                "closed-loop rest state (every coordinate free under the force law "
+                "at rest at the first time: "
+                + (
+                    "the closed-loop stiffness K - dF/dY is singular, the force "
+                    "law does not hold the contact bodies, e.g. constant forces"
+                    if np.all(np.isfinite(np.asarray(y)))
+                    else "the solver did not converge from y_init"
+                )
+                + "); use a force law that holds the grasps (pose_tracking), start "
+                "y_init nearer to the rest state, or use initial='given'"
             )
         return y
 
@@ -399,10 +420,11 @@ class Study(eqx.Module):
 
     def start(self, inputs: Inputs) -> Inputs:
         """`inputs` with the initial state of the study's rule (`initial`): as
-        given, or at rest in the static equilibrium of their parameters (the
-        contact bodies held at their poses in `inputs.y_init`; NaN where the
-        solver does not converge, so the sample fails). Traceable and
-        differentiable (the rest state by the implicit function theorem)."""
+        given, or at rest in the closed loop of their parameters and force law
+        (`closed_loop_rest`, every coordinate free, sought from the nominal rest
+        state; NaN where the solver does not converge, so the sample fails).
+        Traceable and differentiable (the rest state by the implicit function
+        theorem)."""
         if self.initial != "equilibrium":
             return inputs
         y_rest = _rest(inputs, jnp.asarray(self.ts[0]), self.rest_guess)
@@ -545,19 +567,10 @@ def _options(options, solver, rtol, atol, max_steps) -> SimulationOptions:
 
 
 def _rest(inputs: Inputs, t0, guess) -> jax.Array:
-    """The rest state of `inputs` (NaN where the solver does not converge): the
-    free coordinates from `guess`, the contact bodies held at their poses in
-    `inputs.y_init`, under the applied forces at rest at `t0` in `guess`."""
-    model = inputs.model
-    n = model.n_bodies
-    held = contact_bodies_held(n)
-    start = jnp.where(held, inputs.y_init, guess)
-    if inputs.forces is None:
-        forces = jnp.zeros((n, 6))
-    else:
-        at_rest = inputs.forces(t0, start, jnp.zeros_like(start))
-        forces = pad_to_bodies(jnp.asarray(at_rest, jnp.float64), n)
-    return rest_state(model, start, forces, held, throw=False)
+    """The closed-loop rest state of `inputs` (NaN where the solver does not
+    converge): every coordinate free, sought from `guess`, under the force law of
+    `inputs` at rest at `t0` (`closed_loop_rest`)."""
+    return closed_loop_rest(inputs.model, guess, inputs.forces, t0, throw=False)
 
 
 def _connection_names(model, given, bodies) -> tuple[str, ...] | None:
