@@ -26,7 +26,7 @@ def plot_sobol_indices(indices: xr.Dataset, name: str, top: int = 12):
     conf_s1 = _own(indices, f"S1_conf_{name}")
     if "time" in conf_st.dims:
         conf_st, conf_s1 = conf_st.isel(time=-1), conf_s1.isel(time=-1)
-    elements = _elements(st)
+    elements, _ = _elements(st)
     fig, axes = _panels(len(elements), width=4.6, height=0.32 * top + 1.2)
     for ax, (index, label) in zip(axes, elements):
         total = st.isel(index).values
@@ -70,7 +70,9 @@ def plot_sobol_heatmap(indices: xr.Dataset, name: str, index: str = "ST"):
         raise ValueError(f"output {name!r} has no time axis")
     values = values.transpose("factor", "time", ...)
     t = np.asarray(values["time"].values)
-    elements = _elements(values.isel(factor=0, drop=True).expand_dims("x"), ("time",))
+    elements, _ = _elements(
+        values.isel(factor=0, drop=True).expand_dims("x"), ("time",)
+    )
     n_factors = values.sizes["factor"]
     fig, axes = _panels(len(elements), width=4.6, height=0.22 * n_factors + 1.4)
     image = None
@@ -103,7 +105,7 @@ def plot_sobol_convergence(convergence: xr.Dataset, name: str, top: int = 5):
     st = _own(convergence, f"ST_{name}").transpose("factor", "base_samples", ...)
     conf = _own(convergence, f"ST_conf_{name}").transpose("factor", "base_samples", ...)
     runs = np.asarray(convergence["runs"].values)
-    elements = _elements(st.isel(base_samples=-1, drop=True))
+    elements, _ = _elements(st.isel(base_samples=-1, drop=True))
     fig, axes = _panels(len(elements), width=4.2, height=3.0)
     for ax, (index, label) in zip(axes, elements):
         values = st.isel(index).values
@@ -139,7 +141,7 @@ def plot_morris(effects: xr.Dataset, name: str):
     conf = _own(effects, f"mu_star_conf_{name}")
     if "time" in mu_star.dims:
         mu_star, sigma, conf = (x.isel(time=-1) for x in (mu_star, sigma, conf))
-    elements = _elements(mu_star)
+    elements, _ = _elements(mu_star)
     fig, axes = _panels(len(elements), width=4.2, height=3.4)
     for ax, (index, label) in zip(axes, elements):
         x, y = mu_star.isel(index).values, sigma.isel(index).values

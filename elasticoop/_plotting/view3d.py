@@ -5,6 +5,7 @@ snapshots at chosen instants and an animation export."""
 from typing import TYPE_CHECKING
 
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
@@ -157,8 +158,8 @@ class _Scene:
         ax.set_title(f"t = {self.ts[k]:.3g} s")
 
 
-def _legend_handles():
-    handles = [
+def _legend_handles() -> list[Artist]:
+    handles: list[Artist] = [
         Line2D([], [], color=colour, linewidth=2, label=f"body {axis} axis")
         for axis, colour in zip("xyz", COMPONENT_COLOURS)
     ]
