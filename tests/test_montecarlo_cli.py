@@ -152,8 +152,8 @@ def test_the_shipped_study_builds_the_laws_it_states(shipped_study):
     assert laws["kp"].target == "forces"
     assert study.initial == "equilibrium"
     assert shipped_study.thresholds == {
-        "peak_force": (85.0,),
-        "force_rise": (1.0,),
+        "peak_force": (82.0,),
+        "force_rise": (0.9,),
         "deflection": (5e-3,),
         "pose": (),
     }

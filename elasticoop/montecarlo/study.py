@@ -121,8 +121,8 @@ class Study(eqx.Module):
     n_samples: int = eqx.field(static=True)
     sampling: str = eqx.field(static=True)
     initial: str = eqx.field(static=True)
-    # where each sample's rest state is sought from (free coordinates; the held
-    # ones come from the sample's y_init): the nominal rest state
+    # where each sample's rest state is sought from: the nominal closed-loop rest
+    # state
     rest_guess: jax.Array | None
     options: SimulationOptions = eqx.field(static=True)
     _leaf_shapes: tuple[tuple[str, tuple[int, ...]], ...] = eqx.field(static=True)
