@@ -103,15 +103,16 @@ class _Span(eqx.Module):
 
 
 class _Finals(eqx.Module):
-    """What is kept of each sample once it has stopped."""
+    """What is kept of each sample once it has stopped (of one sample, or with a
+    leading axis over the samples)."""
 
     saved_ys: PyTree[Array]
-    tprev: Float[Array, " batch"]
+    tprev: Float[Array, "*batch"]
     result: Any
-    mask: tuple[Bool[Array, " batch"], ...]
+    mask: tuple[Bool[Array, "*batch"], ...]
     controller_state: PyTree
-    num_steps: Int[Array, " batch"]
-    next_time: Int[Array, " batch"]
+    num_steps: Int[Array, "*batch"]
+    next_time: Int[Array, "*batch"]
 
 
 class _LoopState(eqx.Module):
