@@ -62,6 +62,7 @@ if typing.TYPE_CHECKING:
         Experiment as Experiment,
         IdentificationResult as IdentificationResult,
         Log as Log,
+        MisfitCheck as MisfitCheck,
         ParameterRow as ParameterRow,
         Softplus as Softplus,
         equation_error as equation_error,

@@ -213,6 +213,23 @@ class ImmobileTable(Table):
     D: Matrix
 
 
+_FEEDFORWARD_WORDS = ("weight", "hold", "none")
+
+
+def _feedforward_word(value: Any) -> Any:
+    """One message for a feedforward that is neither a word it knows nor a table
+    (instead of one for each form it could have taken)."""
+    if isinstance(value, dict):
+        return value
+    if value in _FEEDFORWARD_WORDS:
+        return value
+    words = ", ".join(repr(w) for w in _FEEDFORWARD_WORDS)
+    raise ValueError(
+        f"must be one of {words} or a table of six numbers by contact-body name, "
+        f"got {value!r}"
+    )
+
+
 class PoseTrackingTable(Table):
     """`[forces.pose_tracking]`: PD control of the grasp poses along a lift, plus a
     constant feedforward: `"weight"` (an equal share of the total weight on each
@@ -226,7 +243,10 @@ class PoseTrackingTable(Table):
     lift_time: Positive
     kp: NonNegative6
     kd: NonNegative6
-    feedforward: Literal["weight", "hold", "none"] | dict[Name, Vector6] = "weight"
+    feedforward: Annotated[
+        Literal["weight", "hold", "none"] | dict[Name, Vector6],
+        BeforeValidator(_feedforward_word),
+    ] = "weight"
 
 
 class ForcesTable(Table):

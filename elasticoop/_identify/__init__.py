@@ -6,6 +6,7 @@ from .equation_error import equation_error as equation_error
 from .experiment import Experiment as Experiment
 from .identify import identify as identify
 from .initial_state import initial_state_from_data as initial_state_from_data
+from .misfit import MisfitCheck as MisfitCheck
 from .parameters import (
     AbstractTransform as AbstractTransform,
     Bounded as Bounded,
