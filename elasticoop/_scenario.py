@@ -65,7 +65,9 @@ class IdentifySpec:
       `initial`); `None`: `"equilibrium"` for a scenario that starts from its
       equilibrium, `"frozen"` otherwise.
     - `feedforward`: a pose tracking's feedforward during the fit (`identify`'s
-      `feedforward`): `"frozen"` numbers or `"rest"` (holding the rest state).
+      `feedforward`): `"frozen"` numbers, `"rest"` (holding the rest state), or
+      `"auto"` (the command line's rule: frozen, and rest where frozen numbers
+      derived with `feedforward = "hold"` leave a misfit that rest removes).
     """
 
     fit: tuple[str, ...] = ("stiffness", "damping")
@@ -76,7 +78,7 @@ class IdentifySpec:
     method: str = "levenberg-marquardt"
     init: str = "equation_error"
     initial: str | None = None
-    feedforward: str = "frozen"
+    feedforward: str = "auto"
 
 
 class Scenario(eqx.Module):

@@ -120,11 +120,13 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--feedforward",
-        choices=("frozen", "rest"),
+        choices=("auto", "frozen", "rest"),
         help="a pose tracking's feedforward during the fit: frozen (the numbers of "
-        'the scenario as given, e.g. "hold" of its nominal model; the default) or '
-        "rest (the force that holds the grasps in the rest state of the parameters "
-        "evaluated, recomputed with it; with --initial equilibrium)",
+        'the scenario as given, e.g. "hold" of its nominal model), rest (the force '
+        "that holds the grasps in the rest state of the parameters evaluated, "
+        "recomputed with it; with --initial equilibrium), or auto (the default: "
+        'frozen; where a feedforward = "hold" frozen so leaves a misfit, the fit '
+        "is made again with rest and kept when it explains the data)",
     )
     parser.add_argument(
         "--no-velocities",
@@ -229,21 +231,38 @@ def execute(args) -> int:
         f"{'s' if len(experiments) != 1 else ''}",
     )
     initial = initial_rule_of(scenario, spec)
+    rule = derived_feedforward(scenario)
+    feedforward = "frozen" if spec.feedforward == "auto" else spec.feedforward
     try:
-        result = identify(
-            scenario.model,
-            experiments,
-            selection.where,
-            mask=selection.mask,
-            method=spec.method,
-            init=spec.init,
-            max_iterations=spec.max_iterations,
-            progress=not args.quiet,
-            options=scenario.options,
-            initial=initial,
-            feedforward=spec.feedforward,
-            body_names=scenario.names,
+        result = _fit(
+            scenario, experiments, selection, spec, args, initial, feedforward
         )
+        if (
+            spec.feedforward == "auto"
+            and rule == "hold"
+            and initial == "equilibrium"
+            and result.status == "misfit"
+        ):
+            say(
+                args,
+                'the feedforward = "hold" of the nominal model, frozen, leaves a '
+                "misfit: fitting again with the grasps held at rest by the force "
+                "that holds them (--feedforward rest)",
+            )
+            held = _fit(scenario, experiments, selection, spec, args, initial, "rest")
+            if held.status != "misfit":
+                frozen_reason = result.reason
+                result, feedforward = held, "rest"
+                result = dataclasses.replace(
+                    result,
+                    notes=(
+                        *result.notes,
+                        'feedforward = "hold" taken as the force that held the '
+                        "grasps at rest at the start (recomputed with the "
+                        "parameters): with the nominal model's numbers frozen the "
+                        f"model did not explain the data ({frozen_reason})",
+                    ),
+                )
     except ValueError as err:
         if str(err).startswith(_START_FAILURE) or str(err).startswith(
             _SENSITIVITY_FAILURE
@@ -253,8 +272,7 @@ def execute(args) -> int:
             return EXIT_SIMULATION
         raise UserError(str(err)) from err
     notes = [renamed(note, result.names, selection.names) for note in result.notes]
-    rule = derived_feedforward(scenario)
-    if rule is not None and spec.feedforward == "frozen":
+    if rule is not None and feedforward == "frozen":
         numbers = np.asarray(scenario.forces.feedforward)
         notes.append(
             f'the pose tracking\'s feedforward = "{rule}" is what the experimenter '
@@ -274,7 +292,7 @@ def execute(args) -> int:
         folder,
         args,
         initial,
-        spec.feedforward,
+        feedforward,
     )
     say(args, result.report())
     say(args, "wrote " + ", ".join(str(p) for p in paths))
@@ -285,6 +303,24 @@ def execute(args) -> int:
         print(f"elasticoop {NAME}: misfit: {result.reason}", file=sys.stderr)
         return EXIT_MISFIT
     return EXIT_OK
+
+
+def _fit(scenario, experiments, selection, spec, args, initial, feedforward):
+    """`identify` with the scenario's settings and one feedforward rule."""
+    return identify(
+        scenario.model,
+        experiments,
+        selection.where,
+        mask=selection.mask,
+        method=spec.method,
+        init=spec.init,
+        max_iterations=spec.max_iterations,
+        progress=not args.quiet,
+        options=scenario.options,
+        initial=initial,
+        feedforward=feedforward,
+        body_names=scenario.names,
+    )
 
 
 def report_data(

@@ -327,7 +327,7 @@ class IdentifyTable(Table):
     method: Literal[IDENTIFY_METHODS] = "levenberg-marquardt"  # type: ignore[valid-type]
     init: Literal["equation_error", "model"] = "equation_error"
     initial: Literal[INITIAL_RULES] | None = None  # type: ignore[valid-type]
-    feedforward: Literal["frozen", "rest"] = "frozen"
+    feedforward: Literal["auto", "frozen", "rest"] = "auto"
 
 
 # Top-level layout: table name -> (schema, shape): "table", "array" (array of
