@@ -330,7 +330,10 @@ def test_failing_samples_are_counted_and_others_unaffected(results):
         mc.Parameter("state", None, mc.Custom(initial_state), target="y_init")
     ]
     ds = mc.run_study(
-        _study(params), chunk_size=8, batch_width=BATCH_WIDTH, progress=False
+        _study(params, options=COMPARED),
+        chunk_size=8,
+        batch_width=BATCH_WIDTH,
+        progress=False,
     )
     theta = ds["state"].values[:, 0, 4]
     locked, invalid = theta == 1e-4, np.isnan(theta)

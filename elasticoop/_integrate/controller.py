@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, PyTree
+from jaxtyping import Array, Bool, Float, PyTree
 
 from .._custom_types import Scalar
 from .fused_sums import all_finite
@@ -63,8 +63,9 @@ class StopFailedSteps(AbstractStepRecorder):
     in `layout` (what `StepwiseAdjoint` replays)."""
 
     controller: diffrax.AbstractAdaptiveStepSizeController
-    min_step: Scalar
-    halt: Bool[Array, ""]
+    # one value, or one for each element of a batch the batch loop integrates
+    min_step: Float[Array, "*batch"]
+    halt: Bool[Array, "*batch"]
     # `controller`'s, which diffrax reads from the outermost controller
     rtol: int | float | Array | np.ndarray
     atol: int | float | Array | np.ndarray
@@ -75,8 +76,8 @@ class StopFailedSteps(AbstractStepRecorder):
     def __init__(
         self,
         controller: diffrax.AbstractAdaptiveStepSizeController,
-        min_step: Scalar,
-        halt: Bool[Array, ""],
+        min_step: Float[Array, "*batch"],
+        halt: Bool[Array, "*batch"],
         layout: StepLayout | None = None,
     ):
         self.controller = controller
