@@ -212,7 +212,8 @@ def identify(
       noise variance (the declared `Experiment.sigma`, or without it the noise
       the data's own second differences imply), the model does not explain the
       data: `status` is `"misfit"` (not converged), and the report marks the
-      standard errors as not meaningful and names the worst channels and times.
+      standard errors as not meaningful and names the worst channels and times
+      (a fit that never left its start stays `"stalled"`).
       Default `MISFIT_THRESHOLD` (4: a residual twice the noise, RMS).
     - `body_names`: names of the bodies in the parameters' names (e.g.
       `stiffness[plate-front].x`, `mass[plate]`; default: their indices,
@@ -487,7 +488,12 @@ def identify(
         _, _, parts = _evaluate(jnp.asarray(trace.u), problem)
         n_fitted = int(np.sum(~held)) + problem.n_initial
         misfit = misfit_check(parts, problem, n_fitted, misfit_threshold)
-        if misfit.misfit:
+        history = trace.loss_history
+        left_start = len(history) > 1 and history[-1] < history[0]
+        # A fit that never left its start stays "stalled": its residuals are
+        # those of the start, so they say nothing about whether the model can
+        # explain the data.
+        if misfit.misfit and (left_start or status != "stalled"):
             status = "misfit"
             reason = (
                 f"the model does not explain the data: "
