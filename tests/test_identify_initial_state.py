@@ -104,7 +104,14 @@ def fits(scenario, measured):
     e = Experiment(scenario.ts, measured, forces=scenario.forces, sigma=SIGMA)
     start = eqx.tree_at(STIFFNESS, scenario.model, 1.3 * scenario.model.stiffness)
     common = dict(init="model", fit_initial="state", progress=False)
-    held = eo.identify(start, e, STIFFNESS, body_names=scenario.names, **common)
+    held = eo.identify(
+        start,
+        e,
+        STIFFNESS,
+        body_names=scenario.names,
+        hold_unidentifiable=True,
+        **common,
+    )
     free = eo.identify(start, e, STIFFNESS, hold_unidentifiable=False, **common)
     return e, held, free
 
@@ -342,6 +349,7 @@ def test_holding_values_the_data_reject_is_refused(scenario, fits):
         init="model",
         fit_initial="state",
         max_relative_stderr=1e-12,
+        hold_unidentifiable=True,
         progress=False,
     )
     assert not np.any(result.identifiable) and not np.any(result.held)
