@@ -489,10 +489,10 @@ def identify(
         n_fitted = int(np.sum(~held)) + problem.n_initial
         misfit = misfit_check(parts, problem, n_fitted, misfit_threshold)
         history = trace.loss_history
-        left_start = len(history) > 1 and history[-1] < history[0]
-        # A fit that never left its start stays "stalled": its residuals are
-        # those of the start, so they say nothing about whether the model can
-        # explain the data.
+        # A stalled fit whose loss fell by less than 0.1 % never left its start
+        # and stays "stalled": its residuals are (nearly) those of the start, so
+        # they say nothing about whether the model can explain the data.
+        left_start = len(history) > 1 and history[-1] < 0.999 * history[0]
         if misfit.misfit and (left_start or status != "stalled"):
             status = "misfit"
             reason = (
