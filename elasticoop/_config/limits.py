@@ -9,6 +9,8 @@ an out-of-memory crash of the run that follows.
 - `MAX_OUTPUT_BYTES`: the results of one run, `output_bytes` (1 GiB of float64).
 """
 
+from .._sizes import format_bytes as format_bytes
+
 MAX_SCENARIO_FILE_BYTES = 16 * 2**20
 MAX_DATA_FILE_BYTES = 2**30
 MAX_SAMPLES_BYTES = 2**30
@@ -54,17 +56,6 @@ def output_limit_problem(
         f"connection{'' if n_connections == 1 else 's'}), over the limit of "
         f"{format_bytes(MAX_OUTPUT_BYTES)}; use at most {most} samples"
     )
-
-
-def format_bytes(size: int | float) -> str:
-    """`1.5 GiB`, `12.3 MiB`, `640 bytes` (`over 1024 EiB` beyond that)."""
-    if size >= 2**70:
-        return "over 1024 EiB"
-    units = ("EiB", "PiB", "TiB", "GiB", "MiB", "KiB")
-    for unit, scale in zip(units, (2**60, 2**50, 2**40, 2**30, 2**20, 2**10)):
-        if size >= scale:
-            return f"{size / scale:.3g} {unit}"
-    return f"{int(size)} bytes"
 
 
 # What `elasticoop run` writes, at most, besides the numbers of its results: a

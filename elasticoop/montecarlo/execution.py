@@ -32,11 +32,12 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from tqdm import tqdm
 
 from .._compile_options import fast_compile_jit
+from .._sizes import format_bytes
 from .._status import Status
 from .._version import __version__
 from .distributed import barrier, broadcast_from_first, gather, is_first_process
 from .lock import store_lock
-from .resources import StudyTooLargeError, free_space, host_memory_budget, size_text
+from .resources import StudyTooLargeError, free_space, host_memory_budget
 from .sampling import lhs_strata
 from .store import (
     FORMAT,
@@ -217,10 +218,10 @@ def chunk_size_for(
     needed = _batch_bytes(study, lanes)
     if needed > memory_budget:
         raise StudyTooLargeError(
-            f"memory_budget = {memory_budget} bytes ({size_text(memory_budget)}) "
+            f"memory_budget = {memory_budget} bytes ({format_bytes(memory_budget)}) "
             f"is too small for batch_width = {batch_width} on {n_devices} "
             f"device(s): one batch needs about {needed} bytes "
-            f"({size_text(needed)}, {len(study.ts)} output times a sample); "
+            f"({format_bytes(needed)}, {len(study.ts)} output times a sample); "
             f"raise memory_budget, or lower batch_width or the number of output times"
         )
     batches = (memory_budget - in_flight) // (lanes * record)
@@ -318,13 +319,13 @@ def check_needs(
         limit = free_space(store) if disk_budget is None else int(disk_budget)
         if limit is not None and disk > limit:
             over = (
-                f"over disk_budget = {size_text(limit)}"
+                f"over disk_budget = {format_bytes(limit)}"
                 if disk_budget is not None
-                else f"over the {size_text(limit)} free on its file system"
+                else f"over the {format_bytes(limit)} free on its file system"
             )
             raise StudyTooLargeError(
-                f"{what} needs about {size_text(disk)} of disk in the store {store} "
-                f"({size_text(_record_bytes(study))} a sample), {over}; draw fewer "
+                f"{what} needs about {format_bytes(disk)} of disk in the store {store} "
+                f"({format_bytes(_record_bytes(study))} a sample), {over}; draw fewer "
                 f"samples, keep fewer "
                 f"outputs over time or fewer output times, or free space"
             )
@@ -332,13 +333,13 @@ def check_needs(
     budget = host_memory_budget() if host_budget is None else int(host_budget)
     if memory > budget:
         over = (
-            f"over host_budget = {size_text(budget)}"
+            f"over host_budget = {format_bytes(budget)}"
             if host_budget is not None
-            else f"over {size_text(budget)}, half of this machine's memory"
+            else f"over {format_bytes(budget)}, half of this machine's memory"
         )
         raise StudyTooLargeError(
-            f"{what} needs about {size_text(memory)} of memory for its results and "
-            f"sampling design ({size_text(_record_bytes(study))} a sample), {over}; "
+            f"{what} needs about {format_bytes(memory)} of memory for its results and "
+            f"sampling design ({format_bytes(_record_bytes(study))} a sample), {over}; "
             f"draw fewer samples, or keep fewer "
             f"outputs over time or fewer output times"
         )
@@ -617,7 +618,7 @@ def _say_start(study, path, manifest, done, resumed: bool, needs: dict) -> None:
         text = (
             f"study store {path}: {study.n_samples} samples in {n_chunks} chunk"
             f"{'' if n_chunks == 1 else 's'} of {size}, about "
-            f"{size_text(needs['disk'])} on disk"
+            f"{format_bytes(needs['disk'])} on disk"
         )
     print(text, file=sys.stderr, flush=True)
 
