@@ -21,7 +21,9 @@ Three measurements, each ratio from calls timed in turn in one process (best of
 - `grad`: `jax.grad` of a trajectory loss (the sum of squared deviations of Y at
   the 301 output times of `default_scenario()`, 3 s, from a target 1 mm away) with
   respect to the 24 stiffness and damping parameters, at `simulate`'s defaults,
-  against one forward run (the loss, jitted).
+  against one forward run (the loss, jitted); and its two halves timed alone: the
+  forward run that records the accepted steps (`record`) and the backward pass
+  (`backward`), with the run's accepted steps.
 - `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
   `vmap`-ped forward run (both at the defaults: the forward run in the batch loop).
 
@@ -153,15 +155,23 @@ def gradients(t_index: int | None, width: int, rounds: int):
         return eo.simulate(model, s.y_init, s.ydot_init, ts, forces=s.forces).y
 
     target = trajectory(params) + 1e-3
+    model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
+    steps = eo.simulate(model, s.y_init, s.ydot_init, ts, forces=s.forces).n_steps
 
     def loss(params):
         return jnp.sum((trajectory(params) - target) ** 2)
 
     scale = 1 + 0.05 * jax.random.uniform(jax.random.key(0), (width, 1, 1))
     sets = tuple(p[None] * scale for p in params)
+    # the gradient's two halves: the forward run that records the steps (the
+    # pullback is returned, so that the record is computed), and the backward pass
+    record = jax.jit(lambda p: jax.vjp(loss, p))
+    _, pullback = record(params)
     calls = {
         "forward": (jax.jit(loss), (params,)),
         "grad": (jax.jit(jax.grad(loss)), (params,)),
+        "record": (record, (params,)),
+        "backward": (jax.jit(lambda pull: pull(jnp.ones(()))), (pullback,)),
         "vmap_forward": (jax.jit(jax.vmap(loss)), (sets,)),
         "vmap_grad": (jax.jit(jax.vmap(jax.grad(loss))), (sets,)),
     }
@@ -172,6 +182,9 @@ def gradients(t_index: int | None, width: int, rounds: int):
         "forward_ms": 1e3 * times["forward"],
         "grad_ms": 1e3 * times["grad"],
         "grad_over_forward": times["grad"] / times["forward"],
+        "steps": int(steps),
+        "record_over_forward": times["record"] / times["forward"],
+        "backward_over_forward": times["backward"] / times["forward"],
         "vmap_forward_ms": 1e3 * times["vmap_forward"],
         "vmap_grad_ms": 1e3 * times["vmap_grad"],
         "vmap_grad_over_vmap_forward": times["vmap_grad"] / times["vmap_forward"],
