@@ -9,6 +9,8 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 # No implicit dtype promotion, as in diffrax's tests.
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+# No implicit rank promotion (broadcasting must be written out), as in diffrax's tests.
+jax.config.update("jax_numpy_rank_promotion", "raise")
 
 # The command line keeps compiled executables on disk; the tests use a folder of
 # their own rather than the user's cache: one per test run, made by the process that

@@ -87,7 +87,7 @@ def _two_body(stiffness, force, y_init, max_steps=200, **options):
 def test_batch_equals_vmap_of_single_runs_with_failing_elements():
     # stiff and soft grasps (different steps), a NaN force, a NaN start, and
     # max_steps between the step counts of the soft and the stiff grasps
-    scale = jnp.array([1.0, 30.0, 1.0, 1.0, 0.5])[:, None, None] * MODEL.stiffness
+    scale = jnp.array([1.0, 30.0, 1.0, 1.0, 0.5])[:, None, None] * MODEL.stiffness[None]
     forces = jnp.stack([LIFT, LIFT, LIFT.at[0, 2].set(jnp.nan), LIFT, 0.5 * LIFT])
     starts = jnp.stack([Y0, Y0, Y0, Y0.at[1, 4].set(jnp.nan), Y0])
     plain, loop = _both(_two_body, scale, forces, starts)
@@ -101,7 +101,7 @@ def test_batch_equals_vmap_of_single_runs_with_failing_elements():
 def test_a_few_lanes_at_a_time_equal_the_whole_batch_at_once():
     # batch_loop=n: n elements at once, each next one starting as one stops; the
     # batch of the test above (failures, max_steps) twice over, in 2 and 3 lanes
-    scale = jnp.array([1.0, 30.0, 1.0, 1.0, 0.5] * 2)[:, None, None] * MODEL.stiffness
+    scale = jnp.array([1.0, 30.0, 1.0, 1.0, 0.5] * 2)[:, None, None] * MODEL.stiffness[None]
     forces = jnp.stack([LIFT, LIFT, LIFT.at[0, 2].set(jnp.nan), LIFT, 0.5 * LIFT] * 2)
     starts = jnp.stack([Y0, Y0, Y0, Y0.at[1, 4].set(jnp.nan), Y0] * 2)
 
@@ -126,6 +126,7 @@ def test_batch_loop_takes_a_bool_or_a_positive_integer(lanes):
         _two_body(MODEL.stiffness, LIFT, Y0, batch_loop=lanes)
 
 
+@pytest.mark.slow
 def test_outside_vmap_it_is_the_plain_run_differentiable_with_the_default_adjoint():
     def final_height(stiffness, batch_loop, **options):
         traj = _two_body(

@@ -71,8 +71,8 @@ def test_torque_free_body(convention):
     angles, rates = traj.y[:, 0, 3:], traj.ydot[:, 0, 3:]
     R = jax.vmap(rot.matrix)(angles)
     omega = jax.vmap(rot.angular_velocity)(angles, rates)
-    momentum = jnp.einsum("tij,tj->ti", R, INERTIA * omega)
-    drift = jnp.max(jnp.linalg.norm(momentum - momentum[0], axis=1))
+    momentum = jnp.einsum("tij,tj->ti", R, INERTIA[None, :] * omega)
+    drift = jnp.max(jnp.linalg.norm(momentum - momentum[0:1], axis=1))
     assert drift / jnp.linalg.norm(momentum[0]) < MOMENTUM_RTOL
 
     R_ref = _quaternion_rotations(np.asarray(R[0]), ts)

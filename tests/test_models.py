@@ -52,7 +52,7 @@ def test_potential_matches_appendix_pi_matrix_form():
     rest angles), pi_ij = diag(c (1 - rho/|r_i - r_j|)^2, c^a)."""
     model = three_body_model()
     y, _ = _random_state(7)
-    y = y.at[:, 3:].set(y[:, 3:] - y[0, 3:])  # any angles; rest angles are zero here
+    y = y.at[:, 3:].set(y[:, 3:] - y[0:1, 3:])  # any angles; rest angles are zero here
     total = 0.0
     for p, (i, j) in enumerate(np.asarray(model.pairs)):
         c = np.asarray(model.stiffness[p])

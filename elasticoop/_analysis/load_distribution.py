@@ -134,7 +134,7 @@ def _split(
     m = wrenches.shape[0]
     ell: Array | float
     if length is None:
-        ell = jnp.mean(jnp.linalg.norm(points - center, axis=-1))
+        ell = jnp.mean(jnp.linalg.norm(points - center[None, :], axis=-1))
         ell = jnp.where(ell > 0, ell, 1.0)
     else:
         ell = length
@@ -144,7 +144,7 @@ def _split(
     G = grasp_matrix(points, center)
     f = wrenches.reshape(-1)
     w = G @ f
-    motion = scale * (jnp.linalg.pinv(G * scale) @ w)
+    motion = scale * (jnp.linalg.pinv(G * scale[None, :]) @ w)
     return LoadDistribution(
         object_wrench=w,
         motion=motion.reshape(m, 6),
