@@ -101,7 +101,9 @@ def test_batch_equals_vmap_of_single_runs_with_failing_elements():
 def test_a_few_lanes_at_a_time_equal_the_whole_batch_at_once():
     # batch_loop=n: n elements at once, each next one starting as one stops; the
     # batch of the test above (failures, max_steps) twice over, in 2 and 3 lanes
-    scale = jnp.array([1.0, 30.0, 1.0, 1.0, 0.5] * 2)[:, None, None] * MODEL.stiffness[None]
+    scale = (
+        jnp.array([1.0, 30.0, 1.0, 1.0, 0.5] * 2)[:, None, None] * MODEL.stiffness[None]
+    )
     forces = jnp.stack([LIFT, LIFT, LIFT.at[0, 2].set(jnp.nan), LIFT, 0.5 * LIFT] * 2)
     starts = jnp.stack([Y0, Y0, Y0, Y0.at[1, 4].set(jnp.nan), Y0] * 2)
 
