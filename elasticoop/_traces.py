@@ -91,9 +91,15 @@ def stored_program(fn: _Fn) -> _Fn:
 
 
 def _key(fn: Callable, static: Any, dynamic_tree: Any, leaves: list) -> str | None:
-    """The key of a program, or `None` where a static value's text form is not
-    faithful (an object shown by its address)."""
+    """The key of a program, or `None` where the arguments hold code that the key
+    does not cover (a class or function of the caller's own: its source is not
+    hashed), or a static value whose text form is not faithful (an object shown by
+    its address)."""
     static_leaves, static_tree = jax.tree_util.tree_flatten(static)
+    if not (_known_structure(static_tree) and _known_structure(dynamic_tree)):
+        return None
+    if not all(_known_value(v) for v in static_leaves):
+        return None
     described = "\n".join(
         [
             f"{fn.__module__}.{fn.__qualname__}",
@@ -116,6 +122,40 @@ def _key(fn: Callable, static: Any, dynamic_tree: Any, leaves: list) -> str | No
     if re.search(r" at 0x[0-9a-f]+", described):
         return None
     return hashlib.sha256(described.encode()).hexdigest()
+
+
+# Where the classes and functions in a key may come from: elasticoop (its sources
+# are hashed), the libraries whose versions are in the key, and Python itself.
+_KNOWN_MODULES = ("elasticoop", "equinox", "jax", "jaxlib", "builtins", "collections")
+
+
+def _known_structure(treedef: Any) -> bool:
+    """Whether every node of `treedef` (its class and auxiliary data: an equinox
+    Module's static fields) is made of known code."""
+    stack = [treedef]
+    while stack:
+        node = stack.pop()
+        data = node.node_data()
+        if data is not None and not _known_value(data):
+            return False
+        stack.extend(node.children())
+    return True
+
+
+def _known_value(value: Any) -> bool:
+    """Whether `value` is a plain value, a container of them, or a class, function
+    or object of known code (see `_KNOWN_MODULES`)."""
+    if value is None or isinstance(value, bool | int | float | complex | str | bytes):
+        return True
+    if isinstance(value, tuple | list | frozenset | set):
+        return all(_known_value(v) for v in value)
+    if isinstance(value, dict):
+        return all(_known_value(k) and _known_value(v) for k, v in value.items())
+    if isinstance(value, type) or callable(value):
+        module = getattr(value, "__module__", None) or ""
+    else:
+        module = type(value).__module__
+    return module.split(".")[0] in _KNOWN_MODULES
 
 
 def _equinox_error_mode() -> str:

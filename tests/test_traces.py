@@ -97,3 +97,26 @@ def test_objects_shown_by_their_address_are_not_keys(tmp_path):
         (out,) = double(jnp.ones(3), lambda v: v)
     np.testing.assert_array_equal(out, 2.0)
     assert len(calls) == 1 and not (tmp_path / FOLDER).exists()
+
+
+class Factor:
+    """A static value of the caller's own code (its text form is faithful, but its
+    source is no part of the key)."""
+
+    def __init__(self, k):
+        self.k = k
+
+    def __repr__(self):
+        return f"Factor({self.k})"
+
+    def __mul__(self, x):
+        return self.k * x
+
+
+def test_code_of_the_callers_own_is_not_a_key(tmp_path):
+    """A class or function the key does not cover could change between two
+    processes without changing the key: the program is traced, never stored."""
+    with compilation_cache(tmp_path):
+        (out, _) = scaled(jnp.ones(3), Factor(4))
+    np.testing.assert_array_equal(out, 4.0)
+    assert not (tmp_path / FOLDER).exists()
