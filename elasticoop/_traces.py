@@ -42,6 +42,7 @@ import numpy as np
 from ._cache import active_cache_folder
 from ._compat import outside_transformations
 from ._compile_options import FAST_COMPILE
+from ._version import __version__
 
 _Fn = TypeVar("_Fn", bound=Callable[..., Any])
 
@@ -100,6 +101,9 @@ def _key(fn: Callable, static: Any, dynamic_tree: Any, leaves: list) -> str | No
         return None
     if not all(_known_value(v) for v in static_leaves):
         return None
+    code = _code_version()
+    if code is None:
+        return None
     described = "\n".join(
         [
             f"{fn.__module__}.{fn.__qualname__}",
@@ -116,7 +120,7 @@ def _key(fn: Callable, static: Any, dynamic_tree: Any, leaves: list) -> str | No
             f"x64={jax.config.read('jax_enable_x64')}",
             f"equinox errors={_equinox_error_mode()}",
             f"backend={jax.default_backend()}",
-            _code_version(),
+            code,
         ]
     )
     if re.search(r" at 0x[0-9a-f]+", described):
@@ -164,12 +168,15 @@ def _equinox_error_mode() -> str:
 
 
 @functools.cache
-def _code_version() -> str:
+def _code_version() -> str | None:
     """A digest of elasticoop's source files and the versions of the libraries
-    whose code a program contains."""
-    digest = hashlib.sha256()
+    whose code a program contains (`None` where the sources cannot be read)."""
+    digest = hashlib.sha256(__version__.encode())
     package = pathlib.Path(__file__).parent
-    for path in sorted(package.rglob("*.py")):
+    sources = sorted(package.rglob("*.py"))
+    if not sources:
+        return None
+    for path in sources:
         digest.update(str(path.relative_to(package)).encode())
         digest.update(path.read_bytes())
     versions = []
