@@ -86,7 +86,11 @@ def stored_program(fn: _Fn) -> _Fn:
             _initialise_lapack(exported)
             program = jax.jit(exported.call, compiler_options=FAST_COMPILE)
             _programs[path] = program
-        return program(*leaves)
+        try:
+            return program(*leaves)
+        except jax.errors.JaxRuntimeError:  # e.g. an XLA that refuses the options
+            _programs.pop(path, None)
+            return fn(*args)
 
     return cast(_Fn, call)
 
