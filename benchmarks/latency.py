@@ -4,9 +4,9 @@ the default scenario.
     python benchmarks/latency.py [--json out.json]
 
 The command line: wall time of `python -m elasticoop --version`, `--help` and
-`check` of the built-in scenario file (its static equilibrium is compiled: warm,
-with the compilation cache a first `check` filled), each the quickest of
-`repeats` fresh processes.
+`check` of the built-in scenario file (its static equilibrium's traced program
+and compiled code are stored: warm, with the cache folder a first `check` filled),
+each the quickest of `repeats` fresh processes.
 
 Wall time of `python -c` importing elasticoop and simulating
 `default_scenario()` (3 bodies, 2 grasps, 3 s, Tsit5 at rtol 1e-8), first and second

@@ -11,6 +11,9 @@ from ._compat import check_equinox_version, equinox_error_mode, set_equinox_erro
 # Where the cache lives unless a path or $ELASTICOOP_CACHE_DIR says otherwise.
 DEFAULT_CACHE_DIR = pathlib.Path("~/.cache/elasticoop/jax").expanduser()
 
+# The folder of the cache in use (`None`: none), for the programs `_traces` keeps.
+_active: list[pathlib.Path | None] = [None]
+
 _SETTINGS = (
     "jax_compilation_cache_dir",
     "jax_persistent_cache_min_compile_time_secs",
@@ -29,7 +32,13 @@ def _use_folder(path) -> pathlib.Path:
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    _active[0] = path
     return path
+
+
+def active_cache_folder() -> pathlib.Path | None:
+    """The folder of the compilation cache in use, or `None` when none is."""
+    return _active[0]
 
 
 def enable_compilation_cache(path=None) -> pathlib.Path:
@@ -76,6 +85,7 @@ def compilation_cache(path=None):
     program's settings alone)."""
     check_equinox_version()
     saved = {name: getattr(jax.config, name) for name in _SETTINGS}
+    active = _active[0]
     try:
         folder = _use_folder(path)
         with equinox_error_mode("nan"):
@@ -83,3 +93,4 @@ def compilation_cache(path=None):
     finally:
         for name, value in saved.items():
             jax.config.update(name, value)
+        _active[0] = active

@@ -31,14 +31,24 @@ everywhere and the library's programs would compile as plain `eqx.filter_jit`
 """
 
 import contextlib
+import functools
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import diffrax
 import equinox
 import jax
 import jax.extend.core
 import jax.numpy as jnp
+
+# diffrax is imported where a run needs it (checking a scenario does not).
+if TYPE_CHECKING:
+    import diffrax
+
+    Solver = diffrax.AbstractSolver
+    Interpolation = diffrax.AbstractLocalInterpolation
+    Term = diffrax.AbstractTerm
+else:  # what runtime type checks see
+    Solver = Interpolation = Term = Any
 
 # The equinox versions this module supports: from the first up to, excluding, the
 # second.
@@ -124,7 +134,10 @@ def outside_transformations() -> bool:
 def check_diffrax_version(version: str | None = None) -> None:
     """Raise `RuntimeError` unless `version` (default: the installed diffrax's) is
     within `SUPPORTED_DIFFRAX`."""
-    version = diffrax.__version__ if version is None else version
+    if version is None:
+        import diffrax
+
+        version = diffrax.__version__
     first, end = SUPPORTED_DIFFRAX
     if not first <= _version(version) < end:
         supported = f">={'.'.join(map(str, first))},<{'.'.join(map(str, end))}"
@@ -136,8 +149,8 @@ def check_diffrax_version(version: str | None = None) -> None:
 
 
 def dense_interpolation(
-    solver: diffrax.AbstractSolver, t0: Any, t1: Any, y0: Any, y1: Any, k: Any
-) -> diffrax.AbstractLocalInterpolation:
+    solver: Solver, t0: Any, t1: Any, y0: Any, y1: Any, k: Any
+) -> Interpolation:
     """The dense output of one step of an explicit Runge-Kutta `solver` from `t0`
     to `t1`, from its ends `y0`, `y1` and stage increments `k`."""
     return solver.interpolation_cls(  # type: ignore[attr-defined]
@@ -148,6 +161,8 @@ def dense_interpolation(
 def dense_stages(solver: Any) -> int | None:
     """How many stage increments the solver's dense output holds (its `k`), or
     `None` if its dense output is not built from them."""
+    import diffrax
+
     term = diffrax.ODETerm(lambda t, y, args: -y)
     y0 = jnp.zeros(1)
 
@@ -163,22 +178,29 @@ def dense_stages(solver: Any) -> int | None:
     return None if k is None else int(k.shape[0])
 
 
-class _Wrapped(diffrax.AbstractTerm):
-    term: diffrax.AbstractTerm
+@functools.cache
+def _wrapped_class() -> type:
+    """The wrapper class of `wrapped_term` (one class: defined on first use)."""
+    import diffrax
 
-    def vf(self, t, y, args):
-        return self.term.vf(t, y, args)
+    class _Wrapped(diffrax.AbstractTerm):
+        term: diffrax.AbstractTerm
 
-    def contr(self, t0, t1, **kwargs):
-        return self.term.contr(t0, t1, **kwargs)
+        def vf(self, t, y, args):
+            return self.term.vf(t, y, args)
 
-    def prod(self, vf, control):
-        return self.term.prod(vf, control)
+        def contr(self, t0, t1, **kwargs):
+            return self.term.contr(t0, t1, **kwargs)
+
+        def prod(self, vf, control):
+            return self.term.prod(vf, control)
+
+    return _Wrapped
 
 
-def wrapped_term(term: diffrax.AbstractTerm) -> diffrax.AbstractTerm:
+def wrapped_term(term: Term) -> Term:
     """`term` as `diffrax.diffeqsolve` hands it to the step-size controller's
     `init`: wrapped (diffrax wraps every term in its time direction), so that the
     controller picks the same first step as there (diffrax 0.7 estimates one for an
     `ODETerm` only, and tries 0.01 for any other term)."""
-    return _Wrapped(term)
+    return _wrapped_class()(term)

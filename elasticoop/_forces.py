@@ -4,7 +4,6 @@ import abc
 import warnings
 from collections.abc import Callable
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -141,6 +140,8 @@ class SampledForce(AbstractForce):
             self.jump_ts = self.ts
 
     def __call__(self, t: TimeLike, y: State | None, ydot: State | None) -> Forces:
+        import diffrax  # where a run needs it (checking a scenario does not)
+
         return diffrax.LinearInterpolation(ts=self.ts, ys=self.F).evaluate(t)
 
 

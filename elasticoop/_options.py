@@ -4,21 +4,30 @@ the thresholds of the two singularities), checked once for every caller."""
 import dataclasses
 import math
 import numbers
+import sys
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import diffrax
 import equinox as eqx
 
-# Solver names of scenario files and the command line -> diffrax solvers.
+if TYPE_CHECKING:
+    import diffrax
+
+    Solver = diffrax.AbstractSolver
+else:  # diffrax is imported when a run needs it (runtime checks see `Any`)
+    Solver = Any
+
+# Solver names of scenario files and the command line -> the names of the diffrax
+# solvers (imported when a run needs one: checking a scenario does not import
+# diffrax).
 SOLVERS = {
-    "tsit5": diffrax.Tsit5,
-    "dopri5": diffrax.Dopri5,
-    "dopri8": diffrax.Dopri8,
-    "bosh3": diffrax.Bosh3,
-    "heun": diffrax.Heun,
-    "kvaerno3": diffrax.Kvaerno3,
-    "kvaerno5": diffrax.Kvaerno5,
+    "tsit5": "Tsit5",
+    "dopri5": "Dopri5",
+    "dopri8": "Dopri8",
+    "bosh3": "Bosh3",
+    "heun": "Heun",
+    "kvaerno3": "Kvaerno3",
+    "kvaerno5": "Kvaerno5",
 }
 
 # The default solver and tolerances (`SimulationOptions`).
@@ -65,6 +74,16 @@ def _show_integer(value: numbers.Integral) -> str:
     return f"{'a negative' if value < 0 else 'an'} integer of {digits} digits"
 
 
+def _is_diffrax_solver(solver: Any) -> bool:
+    """Whether `solver` is a diffrax solver (without importing diffrax for an object
+    that cannot be one: diffrax defines its solvers' classes)."""
+    if "diffrax" not in sys.modules:
+        return False
+    import diffrax
+
+    return isinstance(solver, diffrax.AbstractSolver)
+
+
 class SimulationOptions(eqx.Module):
     """The settings of `simulate` that are not physics, validated in one place and
     hashable by value (a `jit` key: equal options share compiled code).
@@ -90,9 +109,7 @@ class SimulationOptions(eqx.Module):
     - `owner`: the name used in error messages (`"simulate"`, `"Study"`, ...).
     """
 
-    solver: diffrax.AbstractSolver | str = eqx.field(
-        static=True, default=DEFAULT_SOLVER
-    )
+    solver: Solver | str = eqx.field(static=True, default=DEFAULT_SOLVER)
     rtol: float = eqx.field(static=True, default=DEFAULT_RTOL)
     atol: float = eqx.field(static=True, default=DEFAULT_ATOL)
     max_steps: int = eqx.field(static=True, default=100_000)
@@ -107,7 +124,7 @@ class SimulationOptions(eqx.Module):
                     f"{self.owner}.solver must be one of {sorted(SOLVERS)}, got "
                     f"{self.solver!r}"
                 )
-        elif not isinstance(self.solver, diffrax.AbstractSolver):
+        elif not _is_diffrax_solver(self.solver):
             raise ValueError(
                 f"{self.owner}.solver must be a diffrax solver or one of "
                 f"{sorted(SOLVERS)}, got {self.solver!r}"
@@ -144,10 +161,12 @@ class SimulationOptions(eqx.Module):
             return self.solver
         return type(self.solver).__name__
 
-    def diffrax_solver(self) -> diffrax.AbstractSolver:
+    def diffrax_solver(self) -> Solver:
         """The diffrax solver instance."""
         if isinstance(self.solver, str):
-            return SOLVERS[self.solver]()
+            import diffrax
+
+            return getattr(diffrax, SOLVERS[self.solver])()
         return self.solver
 
     def kwargs(self) -> dict[str, Any]:

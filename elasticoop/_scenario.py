@@ -14,7 +14,6 @@ from ._models import AbstractElasticModel
 from ._motion import PrescribedMotion, SplineMotion
 from ._naming import default_body_names
 from ._options import SimulationOptions, resolve_options
-from ._simulate import simulate
 from ._trajectory import Trajectory
 
 
@@ -193,4 +192,6 @@ class Scenario(eqx.Module):
         if self.prescribed is not None:
             kwargs["prescribed"] = self.prescribed.motion(self.ts)
         kwargs.update(overrides)
+        from ._simulate import simulate  # the engine, imported when a run needs it
+
         return simulate(self.model, self.y_init, self.ydot_init, self.ts, **kwargs)

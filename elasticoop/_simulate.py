@@ -43,7 +43,7 @@ from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
 from ._options import SimulationOptions, check_initial_step, resolve_options
 from ._status import Status, status_message
-from ._trajectory import Trajectory
+from ._trajectory import SimulationError as SimulationError, Trajectory
 from ._validation import as_float_array, check_times, is_concrete, xp
 
 # The state diffrax integrates: Y, its rate, the work done by the applied forces and
@@ -60,17 +60,6 @@ _Args = tuple[
     PrescribedMotion | None,
     Scalar,
 ]
-
-
-class SimulationError(RuntimeError):
-    """A simulation stopped early: gimbal lock, a collapsed link or solver failure.
-
-    `.trajectory` holds the partial result (`status`, `event_time`, `event_index`).
-    """
-
-    def __init__(self, message: str, trajectory: Trajectory):
-        super().__init__(message)
-        self.trajectory = trajectory
 
 
 def simulate(

@@ -136,3 +136,14 @@ def _map_over_time(fn, *fields):
     # `fn` is a bound method of the model (an equinox pytree): compiled once per
     # method and model structure.
     return jax.vmap(fn)(*fields)
+
+
+class SimulationError(RuntimeError):
+    """A simulation stopped early: gimbal lock, a collapsed link or solver failure.
+
+    `.trajectory` holds the partial result (`status`, `event_time`, `event_index`).
+    """
+
+    def __init__(self, message: str, trajectory: Trajectory):
+        super().__init__(message)
+        self.trajectory = trajectory

@@ -201,16 +201,18 @@ def test_progress_bar_only_when_not_quiet_and_supported(monkeypatch):
 
     import diffrax
 
+    from elasticoop import _simulate  # imported by the command line when it runs
+
     def simulate_with_meter(*args, progress_meter=None, **kwargs):
         pass
 
     monkeypatch.setattr(_common.sys.stderr, "isatty", lambda: True, raising=False)
-    monkeypatch.setattr(_common, "simulate", simulate_with_meter)
+    monkeypatch.setattr(_simulate, "simulate", simulate_with_meter)
     loud, quiet = argparse.Namespace(quiet=False), argparse.Namespace(quiet=True)
     meter = _common.progress_overrides(loud)["progress_meter"]
     assert isinstance(meter, diffrax.TqdmProgressMeter)
     assert _common.progress_overrides(quiet) == {}
-    monkeypatch.setattr(_common, "simulate", lambda model, y, ydot, ts: None)
+    monkeypatch.setattr(_simulate, "simulate", lambda model, y, ydot, ts: None)
     assert _common.progress_overrides(loud) == {}
 
 

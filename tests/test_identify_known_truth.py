@@ -135,7 +135,13 @@ def measured_csv(scenario_path, path, seed):
     """The scenario's motion in mm and degrees, with Gaussian noise of the levels
     of its `sigma` row."""
     s = eo.load_scenario(scenario_path)
-    y = np.array(s.simulate().y)
+    return noisy_csv(s, np.array(s.simulate().y), path, seed)
+
+
+def noisy_csv(s, y, path, seed, declared=True):
+    """The motion `y` `(times, bodies, 6)` of scenario `s` in mm and degrees, with
+    Gaussian noise of the levels of `SIGMA` (declared in a `sigma` row or not)."""
+    y = y.copy()
     y[..., :3] *= 1000.0
     y[..., 3:] = np.degrees(y[..., 3:])
     y += SIGMA * np.random.default_rng(seed).standard_normal(y.shape)
@@ -146,7 +152,8 @@ def measured_csv(scenario_path, path, seed):
         for k, c in enumerate(coords)
     ]
     noise = ["sigma"] + [f"{v:g}" for _ in s.names for v in SIGMA]
-    rows = [",".join(header), ",".join(noise)] + [
+    rows = [",".join(header)] + [",".join(noise)] * declared
+    rows += [
         ",".join([f"{t:.6g}"] + [f"{v:.10g}" for v in sample.reshape(-1)])
         for t, sample in zip(np.asarray(s.ts), y)
     ]
@@ -347,6 +354,58 @@ def test_lengths_in_mm_read_as_metres(files, tmp_path):
     np.testing.assert_allclose(a.y, b.y, rtol=1e-15)
     np.testing.assert_allclose(a.ydot, b.ydot, rtol=1e-15)
     assert float(a.y[0, 0, 2]) == 1.0 and float(a.ydot[0, 0, 2]) == 0.005
+
+
+def moving_start(path, velocity=(0.0, 0.0, 0.05)):
+    """The starting scenario with its initial state given, not from equilibrium:
+    the bar moving at `velocity` [m/s], the grasps held in place (no lift)."""
+    text = scenario_text(**{k.lower(): v for k, v in NOMINAL.items()})
+    text = text.replace('[initial]\nfrom = "equilibrium"\n\n', "")
+    text = text.replace(
+        "[initial.bar]\n", f"[initial.bar]\nvelocity = {list(velocity)}\n"
+    )
+    text = text.replace("lift_height = 0.05", "lift_height = 0.0")
+    path.write_text(text)
+    return path
+
+
+def standing_still_csv(scenario_path, path, seed, declared=True):
+    """Every body standing still at the scenario's initial pose (as `noisy_csv`)."""
+    s = eo.load_scenario(scenario_path)
+    y = np.repeat(np.array(s.y_init)[None], len(s.ts), axis=0)
+    return noisy_csv(s, y, path, seed, declared)
+
+
+@pytest.mark.slow  # a fit with sensitivities (of a scenario of its own)
+@pytest.mark.parametrize("declared", [True, False], ids=["sigma", "no-sigma"])
+def test_data_of_an_object_standing_still_against_a_moving_start_are_a_misfit(
+    tmp_path, declared
+):
+    """Old: data of an object that never moves, against a scenario whose object
+    starts with a velocity, were fitted to estimates with small standard errors and
+    exit 0 (loss 5.6e6; these files, in m, with the old code: exit 0, loss 1.2e7 ->
+    5.9e6 in three iterations). Without a `sigma` row the residuals' correlation
+    from sample to sample says so. Fitted to the end, the stiffnesses run off
+    towards their extremes (the nearest the model comes to standing still): three
+    iterations already show the misfit."""
+    start = moving_start(tmp_path / "moving.toml")
+    data = standing_still_csv(start, tmp_path / "still.csv", 6, declared)
+    out = tmp_path / "fit"
+    argv = ["identify", str(start), str(data), *FIT, "--max-iterations", "3"]
+    code = main([*argv, "-o", str(out), "-q", "--no-plots"])
+    assert code == EXIT_MISFIT
+    r = report(out)
+    assert r["status"] == "misfit" and not r["converged"]
+    assert r["initial_state_rule"] == "frozen"
+    assert not r["stderr_meaningful"]
+    assert r["misfit"]["declared_noise"] is declared
+    if declared:
+        assert r["misfit"]["ratio"] > 4
+    else:
+        assert r["misfit"]["autocorrelation"] > 0.5
+    assert r["misfit"]["worst"][0]["channel"] == "experiment 0: bar.z"
+    text = (out / "report.txt").read_text()
+    assert "STANDARD ERRORS NOT MEANINGFUL" in text and "worst:" in text
 
 
 @pytest.mark.slow  # a fit with sensitivities (compiled as the others)

@@ -1,6 +1,7 @@
 """The main job: the built-in scenario runs and its energy balance closes."""
 
 import json
+import os
 import runpy
 import subprocess
 import sys
@@ -11,12 +12,15 @@ import pytest
 from elasticoop._cli.demo import run_default
 from elasticoop._io.summary import format_summary
 
-# What the command line's answers must not import (`check` needs JAX, equinox,
-# diffrax and pydantic for the scenario and its static equilibrium).
+# What the command line's answers must not import (`check` needs JAX, equinox and
+# pydantic for the scenario, optimistix and lineax to trace its static equilibrium
+# the first time, and SciPy's LAPACK through JAX to run it).
 HEAVY = (
     "jax",
     "equinox",
     "diffrax",
+    "optimistix",
+    "lineax",
     "pydantic",
     "scipy.signal",
     "scipy.stats",
@@ -67,10 +71,12 @@ def test_python_dash_m_runs_the_demo():
     assert "residual" in out.stdout
 
 
-def test_command_line_answers_without_the_heavy_modules():
+def test_command_line_answers_without_the_heavy_modules(tmp_path):
     """`--version` and `--help` import neither JAX nor the scientific stack, and
-    `check` (which solves the scenario's static equilibrium) none of what plotting,
-    data files or fitting need: the command line answers at once."""
+    `check` (which solves the scenario's static equilibrium) none of what running,
+    plotting, data files or fitting need (diffrax included); a second `check`, whose
+    equilibrium's traced program is stored, not even the solvers' libraries: the
+    command line answers at once."""
     scenario = Path(__file__).resolve().parents[1] / "elasticoop/scenarios"
     code = f"""
 import contextlib, io, json, sys
@@ -82,14 +88,24 @@ with contextlib.redirect_stdout(io.StringIO()):
     codes.append(main(["check", {str(scenario / "beam_lift.toml")!r}]))
 print(json.dumps([codes, light, heavy()]))
 """
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300
-    )
-    assert out.returncode == 0, out.stderr
-    codes, after_help, after_check = json.loads(out.stdout.strip().splitlines()[-1])
+    env = {**os.environ, "ELASTICOOP_CACHE_DIR": str(tmp_path)}
+    found = []
+    for _ in range(2):  # the first stores the traced equilibrium, the second loads it
+        out = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env=env,
+        )
+        assert out.returncode == 0, out.stderr
+        found.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    (codes, after_help, after_check), (_, _, after_second) = found
     assert codes == [0, 0, 0]
     assert after_help == []
-    assert set(after_check) <= {"jax", "diffrax", "equinox", "pydantic"}, after_check
+    needed = {"jax", "equinox", "pydantic"}
+    assert set(after_check) <= needed | {"optimistix", "lineax"}, after_check
+    assert set(after_second) <= needed, after_second
 
 
 def test_each_command_is_listed_with_its_own_help_line():

@@ -25,7 +25,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 from .._custom_types import ArrayInput, State
@@ -123,6 +122,8 @@ def closed_loop_rest(
     y_guess = jnp.asarray(y_guess, dtype=jnp.float64)
     if y_guess.shape != (n, 6):
         raise ValueError(f"y_guess must have shape ({n}, 6), got {y_guess.shape}")
+    import optimistix as optx  # imported when a solve is traced
+
     args = (model, y_guess, jnp.asarray(free), forces, jnp.asarray(t0, jnp.float64))
     solution: optx.Solution = optx.root_find(
         _imbalance,

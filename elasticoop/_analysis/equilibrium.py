@@ -3,7 +3,6 @@
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 from .._compile_options import fast_compile_jit
@@ -12,6 +11,7 @@ from .._lagrange import elastic_forces
 from .._models import AbstractElasticModel
 from .._models.base import numerical_rank
 from .._options import SimulationOptions
+from .._traces import stored_program
 from .._validation import as_float_array
 from ._common import as_mask, constant_forces
 
@@ -175,6 +175,9 @@ def _energy(y_free: Float[Array, " free"], args: _Args) -> Scalar:
     return model.potential(y) + model.gravity_potential(y) - jnp.sum(F * y)
 
 
+# Stored: in a fresh process (`elasticoop check`), tracing the two solvers would
+# take most of the time of loading a scenario that starts from its equilibrium.
+@stored_program
 @fast_compile_jit
 def _solve(
     model: AbstractElasticModel,
@@ -185,6 +188,8 @@ def _solve(
     atol: float,
     max_steps: int,
 ) -> tuple[State, Scalar, Bool[Array, ""] | bool, Int[Array, ""], DofMatrix, State]:
+    import optimistix as optx  # imported when a solve is traced
+
     args = (model, y_guess, free, F)
     # Descend the potential energy first: its gradient is the force imbalance, so
     # a start where the stiffness is singular (a link unloaded and stiff only

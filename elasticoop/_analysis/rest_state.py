@@ -18,7 +18,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Bool
 
 from .._custom_types import ArrayInput, State
@@ -96,6 +95,8 @@ def rest_state(
         F = jnp.asarray(forces, dtype=jnp.float64)
         check_force_shape(F.shape, n)
         F = pad_to_bodies(F, n)
+    import optimistix as optx  # imported when a solve is traced
+
     args = (model, y_guess, jnp.asarray(free), F)
     descent: optx.Solution = optx.minimise(
         _energy,

@@ -15,8 +15,8 @@ import numpy as np
 from .._config import ScenarioError, load_scenario
 from .._config.limits import format_bytes, run_files_bytes
 from .._io.folder import OutputFolder, OutputFolderError
-from .._simulate import SimulationError, simulate
 from .._status import status_message
+from .._trajectory import SimulationError
 
 EXIT_OK = 0
 EXIT_BUG = 1  # a bug in elasticoop (or a dependency): shown with its traceback
@@ -166,6 +166,8 @@ def progress_overrides(args) -> dict:
     `simulate` accepts a `progress_meter`."""
     if args.quiet or not sys.stderr.isatty():
         return {}
+    from .._simulate import simulate
+
     if "progress_meter" not in inspect.signature(simulate).parameters:
         return {}
     import diffrax
