@@ -155,7 +155,7 @@ def test_sampled_forces_with_jumps_and_ends_before_the_run():
 
     def run(end, lift, batch_loop):
         ts = jnp.linspace(0.0, end, 7)
-        F = lift * jnp.abs(jnp.sin(20 * ts))[:, None, None] * (LIFT / 15.0)
+        F = lift * jnp.abs(jnp.sin(20 * ts))[:, None, None] * (LIFT / 15.0)[None]
         force = eo.SampledForce(ts, F)
         return _two_body(MODEL.stiffness, force, Y0, 400, batch_loop=batch_loop)
 
@@ -215,7 +215,7 @@ def test_prescribed_motion_and_other_solvers(solver, rtol):
     # first-same-as-last stage (its first is evaluated in each step), and at a
     # second order a looser tolerance
     motion = hold(jnp.zeros((2, 6), bool).at[1].set(True), Y0)
-    scale = jnp.array([1.0, 3.0])[:, None, None] * MODEL.stiffness
+    scale = jnp.array([1.0, 3.0])[:, None, None] * MODEL.stiffness[None]
 
     def run(stiffness, batch_loop):
         model = eqx.tree_at(lambda m: m.stiffness, MODEL, stiffness)

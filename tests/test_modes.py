@@ -108,7 +108,7 @@ def test_linear_response_matches_nonlinear_simulation_for_small_amplitude():
         x0 = np.concatenate([q0, np.zeros(6)])
         linear = scipy.linalg.expm(np.asarray(ss.A) * ts[:, None, None]) @ x0
         errors.append(
-            np.max(np.abs(np.asarray(traj.y[:, 0] - eq.y[0]) - linear[:, :6]))
+            np.max(np.abs(np.asarray(traj.y[:, 0] - eq.y[0:1]) - linear[:, :6]))
         )
         assert errors[-1] < 0.05 * eps
     # second-order agreement: doubling eps quadruples the difference

@@ -32,7 +32,7 @@ class Ballistic(eo.AbstractMotion):
 
     def __call__(self, t):
         fall = jnp.zeros(6).at[2].set(-0.5 * self.g * t**2)
-        return self.y0 + t * self.v + fall
+        return self.y0 + t * self.v[None, :] + fall[None, :]
 
 
 def wave(scale=1.0):

@@ -108,7 +108,7 @@ def test_sampled_force_with_a_jump_time():
     samples are differentiated (its times and jump times are not)."""
     times = jnp.linspace(0.0, 0.2, 5)
     ramp = 1.0 + jnp.minimum(times, 0.1) / 0.1
-    samples = ramp[:, None, None] * LIFT
+    samples = ramp[:, None, None] * LIFT[None]
     force = eo.SampledForce(times, samples, jump_ts=[0.1])
 
     def of_samples(samples, adjoint):

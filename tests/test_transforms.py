@@ -81,8 +81,8 @@ def test_gradient_matches_central_differences():
 @pytest.mark.slow
 def test_vmap_over_stiffness_and_damping_equals_loop():
     rng = np.random.default_rng(0)
-    ks = MODEL.stiffness * jnp.array(rng.uniform(0.5, 1.5, size=(8, 2, 6)))
-    ds = MODEL.damping * jnp.array(rng.uniform(0.5, 1.5, size=(8, 2, 6)))
+    ks = MODEL.stiffness[None] * jnp.array(rng.uniform(0.5, 1.5, size=(8, 2, 6)))
+    ds = MODEL.damping[None] * jnp.array(rng.uniform(0.5, 1.5, size=(8, 2, 6)))
 
     def run_kd(k, d, **options):
         return run(k, d, *PARAMS[2:], **options)
