@@ -14,6 +14,7 @@ the chunk, its neighbours, the number of devices or of processes (bit for bit).
 """
 
 import contextlib
+import importlib.metadata
 import math
 import numbers
 import platform
@@ -368,7 +369,9 @@ def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
 
 
 def _versions() -> dict[str, str]:
-    """Versions of Python and of the libraries that compute a sample."""
+    """Versions of Python and of the libraries that compute a sample, draw the
+    designs (SciPy's and SALib's quasi-Monte Carlo points) and estimate the
+    sensitivity indices (SALib, SciPy)."""
     return {
         "python": platform.python_version(),
         "elasticoop": __version__,
@@ -376,6 +379,8 @@ def _versions() -> dict[str, str]:
         "equinox": eqx.__version__,
         "diffrax": diffrax.__version__,
         "numpy": np.__version__,
+        "scipy": importlib.metadata.version("scipy"),
+        "SALib": importlib.metadata.version("SALib"),
     }
 
 
