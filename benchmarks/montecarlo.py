@@ -123,9 +123,13 @@ def _analysed_memory_per_sample(study, batch_width, devices):
     index = _global_array(mesh, np.zeros(shape, np.int64))
     strata = _global_array(mesh, np.zeros((*shape, 0), np.int32))
     started = _global_array(mesh, np.ones(shape, bool))
+    at_rest = study.initial == "equilibrium"
+    starts = _global_array(
+        mesh, np.zeros((*shape, *(study.y_init.shape if at_rest else (0,))))
+    )
     # the chunk exactly as `run_study` compiles it (the study replicated on the mesh)
     lowered = _run_batch.lower(
-        _replicated(mesh, study), mesh, index, strata, started, batch_width
+        _replicated(mesh, study), mesh, index, strata, started, starts, batch_width
     )
     stats = lowered.compile().compiled.memory_analysis()
     if stats is None:

@@ -146,3 +146,25 @@ def test_two_process_distributed_run_equals_local(reference, tmp_path):
         assert w.returncode == 0, log
     assert "'n_succeeded': 16" in logs[0]
     _same(mc.open_study(store), reference)
+
+
+def test_samples_at_rest_sharded_over_two_devices_equal_one(tmp_path):
+    # The shipped study, each sample starting at rest in its own closed loop
+    # (`[initial] from = "equilibrium"`), over two virtual CPU devices. Old: the
+    # samples' rest states were solved in the sharded program, whose solver loop
+    # waited forever for the devices (no chunk written after minutes, ~6 % CPU).
+    study = ROOT / "elasticoop" / "scenarios" / "beam_lift.study.toml"
+    stores = []
+    for devices in (1, 2):
+        store = tmp_path / f"on-{devices}"
+        subprocess.run(
+            [sys.executable, "-m", "elasticoop", "montecarlo", str(study)]
+            + ["-o", str(store), "--samples", "8", "-q"],
+            env=_env(XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}"),
+            check=True,
+            timeout=SUBPROCESS_TIMEOUT,
+        )
+        stores.append(mc.open_study(store))
+    assert stores[0].attrs["complete"] == 1
+    assert '"initial": "equilibrium"' in stores[0].attrs["study"]
+    xr.testing.assert_identical(stores[0].drop_attrs(), stores[1].drop_attrs())

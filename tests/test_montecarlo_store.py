@@ -102,6 +102,16 @@ def full_store(study, reference, tmp_path_factory):
     return store
 
 
+def test_the_manifest_records_what_computed_the_store(full_store):
+    """The versions of the libraries that draw the samples (SciPy's and SALib's
+    designs), compute them and estimate sensitivity indices from them."""
+    import importlib.metadata
+
+    versions = json.loads((full_store / "manifest.json").read_text())["versions"]
+    for name in ("elasticoop", "jax", "equinox", "diffrax", "numpy", "scipy", "SALib"):
+        assert versions[name] == importlib.metadata.version(name), name
+
+
 def _copy(store, tmp_path):
     return shutil.copytree(store, tmp_path / "study")
 

@@ -2,6 +2,7 @@
 indices (Ishigami, a linear model, a static deflection in closed form run through
 `run_study`), DGSM and its bound, and SALib's own code path."""
 
+import importlib.metadata
 import json
 
 import numpy as np
@@ -82,6 +83,9 @@ def test_estimates_are_salibs_own_element_by_element(ishigami):
         for key in ("S1", "S1_conf", "ST", "ST_conf", "S2", "S2_conf"):
             ours = ind[f"{key}_y"].isel(y_0=j).values
             np.testing.assert_allclose(ours, ref[key], rtol=1e-12, atol=1e-14)
+    # what computed them, kept with them
+    for name in ("SALib", "scipy"):
+        assert ind.attrs[f"{name}_version"] == importlib.metadata.version(name)
 
 
 def test_linear_model_indices_and_their_convergence():

@@ -370,3 +370,20 @@ def write_plots(scenario, traj, outdir, args) -> list:
             save_animation(traj, outdir / f"animation.{animation}", scenario.names)
         )
     return paths
+
+
+def write_text_atomic(file: pathlib.Path, text: str) -> None:
+    """Write `text` to `file` through a temporary file and a rename, so that a
+    failed write (a full disk, a read-only folder) leaves the earlier file whole;
+    `UserError` naming the file on failure."""
+    tmp = file.with_name(f".{file.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, file)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise UserError(
+            f"cannot write {file}: {err.strerror or err} [errno {err.errno}]; the "
+            f"results stored so far are kept"
+        ) from err

@@ -23,7 +23,14 @@ from ..montecarlo.distributed import is_first_process
 from ..montecarlo.execution import ACCELERATOR_BATCH_WIDTH, DEFAULT_BATCH_WIDTH
 from ..montecarlo.store import check_store_folder
 from . import sensitivity
-from ._common import EXIT_OK, UserError, common_options, positive_int, say
+from ._common import (
+    EXIT_OK,
+    UserError,
+    common_options,
+    positive_int,
+    say,
+    write_text_atomic,
+)
 
 NAME = "montecarlo"
 SUMMARY = "summary"
@@ -293,20 +300,3 @@ def write_summary(ds, report, thresholds, units, folder: pathlib.Path) -> list:
                 ) from err
             paths.append(folder / file)
     return paths
-
-
-def write_text_atomic(file: pathlib.Path, text: str) -> None:
-    """Write `text` to `file` through a temporary file and a rename, so that a
-    failed write (a full disk, a read-only folder) leaves the earlier file whole;
-    `UserError` naming the file on failure."""
-    tmp = file.with_name(f".{file.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, file)
-    except OSError as err:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        raise UserError(
-            f"cannot write {file}: {err.strerror or err} [errno {err.errno}]; the "
-            f"results stored so far are kept"
-        ) from err

@@ -14,10 +14,16 @@ import numpy as np
 from .._config import load_study
 from .._config.study_schema import SensitivityTable
 from .._io.strict_json import strict_json
-from ..montecarlo import StoreError, StoreLockedError, open_study, run_study
+from ..montecarlo import (
+    StoreError,
+    StoreLockedError,
+    StudyTooLargeError,
+    open_study,
+    run_study,
+)
 from ..montecarlo.distributed import is_first_process
 from ..montecarlo.sampling import rows_per_point
-from ._common import EXIT_OK, UserError, say
+from ._common import EXIT_OK, UserError, say, write_text_atomic
 
 FOLDER = "sensitivity"
 RECORD = "study_file.json"  # shared with `montecarlo` (its STUDY_FILE_RECORD)
@@ -80,7 +86,7 @@ def execute(args, read_record, use_cache) -> int:
                 progress=not args.quiet,
                 on_chunk=lambda _chunk: _keep(store, record),
             )
-        except (StoreError, StoreLockedError) as err:
+        except (StoreError, StoreLockedError, StudyTooLargeError) as err:
             raise UserError(str(err)) from err
     _keep(store, record)
     if not is_first_process():
@@ -90,7 +96,7 @@ def execute(args, read_record, use_cache) -> int:
 
 def _keep(store: pathlib.Path, record: dict) -> None:
     if is_first_process():
-        (store / RECORD).write_text(strict_json(record))
+        write_text_atomic(store / RECORD, strict_json(record))
 
 
 def analyse(args, store: pathlib.Path, table, study, record: dict) -> int:
@@ -251,8 +257,9 @@ def _dgsm_only(args, ds, table, study, record, folder, name) -> list:
                     f"[{low[k]:.3g}, {high[k]:.3g}]"
                 )
     say(args, "\n".join(lines))
-    paths = [folder / "dgsm.nc"]
+    paths = [folder / "dgsm.nc", folder / "dgsm.json"]
     measures.to_netcdf(paths[0], engine="h5netcdf")
+    paths[1].write_text(strict_json({"dgsm": _as_json(measures)}))
     return paths
 
 

@@ -14,6 +14,7 @@ the chunk, its neighbours, the number of devices or of processes (bit for bit).
 """
 
 import contextlib
+import importlib.metadata
 import math
 import numbers
 import platform
@@ -25,7 +26,6 @@ from pathlib import Path
 import diffrax
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
@@ -99,8 +99,19 @@ _MANIFEST_BYTES_PER_CHUNK = 160
 
 
 @fast_compile_jit
+def _sample_starts(study: Study, index, strata):
+    """The rest states of samples `index` (`initial="equilibrium"`), on one device:
+    solved before the sharded batch, not in it (optimistix's solver, a
+    `while_loop` over a batch split over several devices, waited forever for the
+    devices to agree on when to stop)."""
+    return jax.vmap(partial(sample_start, study))(index, strata)
+
+
+@fast_compile_jit
 @eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
-def _run_batch(study: Study, mesh: Mesh, index, strata, started, batch_width: int):
+def _run_batch(
+    study: Study, mesh: Mesh, index, strata, started, starts, batch_width: int
+):
     # The study's arrays are traced and its structure static, so one compilation
     # serves every study of the same structure and chunk size. `index` has shape
     # (devices, samples a device), axis 0 split over the mesh: each device
@@ -108,14 +119,9 @@ def _run_batch(study: Study, mesh: Mesh, index, strata, started, batch_width: in
     # sample starting as one stops (`shard_map` of a `vmap` of
     # `simulate(..., batch_loop=batch_width)`), not waiting for the other devices.
     # Where `started` is false (the padding of a last chunk) the sample stops at
-    # its first step. The samples' rest states (`initial="equilibrium"`) are
-    # solved before, outside the `shard_map` (optimistix's solvers are kept
-    # out of it), split over the devices as the samples are.
+    # its first step. `starts`: the samples' rest states (`initial="equilibrium"`,
+    # `_sample_starts`), split over the devices as the samples are; else empty.
     arrays, static = eqx.partition(study, eqx.is_array)
-    if study.initial == "equilibrium":
-        starts = jax.vmap(jax.vmap(partial(sample_start, study)))(index, strata)
-    else:
-        starts = jnp.zeros(index.shape + (0,))  # not used
 
     def on_device(arrays, index, strata, started, starts):
         study = eqx.combine(arrays, static)
@@ -368,7 +374,9 @@ def _manifest(study: Study, chunk_size: int, batch_width: int) -> dict:
 
 
 def _versions() -> dict[str, str]:
-    """Versions of Python and of the libraries that compute a sample."""
+    """Versions of Python and of the libraries that compute a sample, draw the
+    designs (SciPy's and SALib's quasi-Monte Carlo points) and estimate the
+    sensitivity indices (SALib, SciPy)."""
     return {
         "python": platform.python_version(),
         "elasticoop": __version__,
@@ -376,6 +384,8 @@ def _versions() -> dict[str, str]:
         "equinox": eqx.__version__,
         "diffrax": diffrax.__version__,
         "numpy": np.__version__,
+        "scipy": importlib.metadata.version("scipy"),
+        "SALib": importlib.metadata.version("SALib"),
     }
 
 
@@ -657,6 +667,10 @@ def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[
             padded = math.ceil(min(chunk_size, study.n_samples) / n_devices) * n_devices
             numbers = np.arange(start, start + padded)
             index = np.minimum(numbers, stop - 1)
+            if study.initial == "equilibrium":
+                starts = np.asarray(_sample_starts(study, index, strata[index]))
+            else:
+                starts = np.zeros((padded, 0))  # not used
             launches = [
                 _run_batch(
                     traced,
@@ -666,6 +680,12 @@ def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[
                         mesh, strata[index].reshape(n_devices, padded // n_devices, -1)
                     ),
                     _global_array(mesh, (numbers < stop).reshape(n_devices, -1)),
+                    _global_array(
+                        mesh,
+                        starts.reshape(
+                            n_devices, padded // n_devices, *starts.shape[1:]
+                        ),
+                    ),
                     batch_width,
                 )
             ]

@@ -25,8 +25,9 @@ def sensitivity_study(
 ) -> Study:
     """`study` with the design of `method` on `base_samples` base points (Saltelli:
     $N(D+2)$ runs, or $N(2D+2)$ with `second_order`; Morris: $N(D+1)$; DGSM: $N$
-    Sobol' points), $D$ the scalar parameters that vary. The key, parameters,
-    outputs, inputs and solver are kept."""
+    Sobol' points), $D$ the scalar parameters that vary. Everything else is
+    `study`'s: the key, parameters, outputs, inputs, what each sample starts from
+    (`initial`) and the simulation options."""
     sampling = design_of(method, second_order)
     d = int(active_entries(study).sum())
     return Study(
@@ -40,10 +41,8 @@ def sensitivity_study(
         key=jax.random.wrap_key_data(jnp.asarray(study.key_data)),
         forces=study.inputs.forces,
         sampling=sampling,
-        solver=study.options.solver,
-        rtol=study.rtol,
-        atol=study.atol,
-        max_steps=study.max_steps,
         body_names=study.body_names,
         connection_names=study.connection_names,
+        initial=study.initial,
+        options=study.options,
     )

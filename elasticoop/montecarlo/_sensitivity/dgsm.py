@@ -31,7 +31,7 @@ from ..sampling import active_entries
 from ..sensitivity import jacobian_name, local_sensitivities
 from ..study import Study
 from .factors import _label
-from .sobol import DEFAULT_BOOTSTRAP, _check_positive
+from .sobol import DEFAULT_BOOTSTRAP, _check_positive, estimator_versions
 
 
 def poincare_constants(study: Study) -> tuple[np.ndarray, np.ndarray]:
@@ -138,7 +138,8 @@ def dgsm(
             "samples": int(n),
             "bootstrap": int(bootstrap),
             "confidence": float(confidence),
-        },
+        }
+        | estimator_versions(),
     )
 
 

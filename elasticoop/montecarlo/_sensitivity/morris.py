@@ -16,7 +16,7 @@ import xarray as xr
 
 from ..sampling import MORRIS_LEVELS, morris_grid, rows_per_point
 from .factors import element_coords, factors_of, output_columns, output_names
-from .sobol import DEFAULT_BOOTSTRAP, _check_positive
+from .sobol import DEFAULT_BOOTSTRAP, _check_positive, estimator_versions
 
 
 def morris_effects(
@@ -101,5 +101,6 @@ def morris_effects(
             "bootstrap": int(bootstrap),
             "confidence": float(confidence),
             "sampling": "morris",
-        },
+        }
+        | estimator_versions(),
     )

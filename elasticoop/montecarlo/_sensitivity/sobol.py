@@ -17,12 +17,14 @@ A base point one of whose rows failed (or gave a non-finite value) is left out o
 that output element's estimate; their number is recorded.
 """
 
+import importlib.metadata
 import warnings
 
 import numpy as np
 import xarray as xr
 from scipy.stats import norm
 
+from ..._version import __version__
 from ..sampling import rows_per_point
 from .factors import (
     Factors,
@@ -128,8 +130,19 @@ def sobol_indices(
             "bootstrap": int(bootstrap),
             "confidence": float(confidence),
             "sampling": design,
-        },
+        }
+        | estimator_versions(),
     )
+
+
+def estimator_versions() -> dict[str, str]:
+    """The versions of what estimated a result (its `attrs`, kept in the files
+    written from it): SALib, SciPy and elasticoop."""
+    return {
+        "SALib_version": importlib.metadata.version("SALib"),
+        "scipy_version": importlib.metadata.version("scipy"),
+        "elasticoop_version": __version__,
+    }
 
 
 def _check_positive(value, name: str) -> None:
