@@ -98,6 +98,7 @@ def test_batch_equals_vmap_of_single_runs_with_failing_elements():
     assert int(loop.n_steps[0]) < int(loop.n_steps[1]) == 200
 
 
+@pytest.mark.slow  # over 10 s
 def test_a_few_lanes_at_a_time_equal_the_whole_batch_at_once():
     # batch_loop=n: n elements at once, each next one starting as one stops; the
     # batch of the test above (failures, max_steps) twice over, in 2 and 3 lanes

@@ -156,6 +156,7 @@ def test_exceedance_probability_with_wilson_interval(results, single_runs):
     np.testing.assert_allclose(hi, 1.959963984540054**2 / (10 + 1.959963984540054**2))
 
 
+@pytest.mark.slow  # over 10 s
 @pytest.mark.parametrize("chunk_size", [12, 10])
 def test_chunk_size_does_not_change_results(study, results, chunk_size):
     # 10: the last chunk (4 samples) is padded to the others' length with
@@ -166,6 +167,7 @@ def test_chunk_size_does_not_change_results(study, results, chunk_size):
     xr.testing.assert_identical(results.drop_attrs(), other.drop_attrs())
 
 
+@pytest.mark.slow  # over 10 s
 def test_default_batch_width_follows_the_chunk_size(study, results):
     # no batch_width: a chunk of BATCH_WIDTH samples on one device is integrated
     # BATCH_WIDTH at a time (not padded to DEFAULT_BATCH_WIDTH), so the values are

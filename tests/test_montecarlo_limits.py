@@ -61,6 +61,7 @@ def test_the_command_line_refuses_a_folder_of_other_files(tmp_path, capsys):
     assert _files(folder) == before
 
 
+@pytest.mark.slow  # over 10 s
 def test_run_study_refuses_a_folder_of_other_files(study, tmp_path):
     """Before: `run_study(study, DIR)` wrote its manifest and chunks among the
     user's files."""

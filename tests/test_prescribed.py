@@ -266,6 +266,7 @@ def test_inverse_dynamics_inverts_the_accelerations():
     )
 
 
+@pytest.mark.slow  # over 10 s
 @pytest.mark.parametrize("seed", [1, 2])
 def test_constrained_solve_matches_a_dense_solve(seed):
     """Against an independent route: the full 6x6 blocks of `mass_matrix`, the
