@@ -7,7 +7,7 @@ when the scenario is built (`elasticoop._config.build`).
 """
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import (
     AfterValidator,
@@ -213,7 +213,8 @@ class ImmobileTable(Table):
     D: Matrix
 
 
-_FEEDFORWARD_WORDS = ("weight", "hold", "none")
+FeedforwardWord = Literal["weight", "hold", "none"]
+_FEEDFORWARD_WORDS = get_args(FeedforwardWord)
 
 
 def _feedforward_word(value: Any) -> Any:
@@ -244,7 +245,7 @@ class PoseTrackingTable(Table):
     kp: NonNegative6
     kd: NonNegative6
     feedforward: Annotated[
-        Literal["weight", "hold", "none"] | dict[Name, Vector6],
+        FeedforwardWord | dict[Name, Vector6],
         BeforeValidator(_feedforward_word),
     ] = "weight"
 
