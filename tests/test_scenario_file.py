@@ -2,6 +2,7 @@
 with a message naming the file, the table and the key."""
 
 import math
+import pathlib
 
 import jax.numpy as jnp
 import numpy as np
@@ -617,3 +618,15 @@ def test_equilibrium_start_holds_a_csv_motion_at_its_first_values(tmp_path):
     np.testing.assert_array_equal(y0, s.y_init)
     net = -(eo.elastic_forces(s.model, y0) - s.model.gravity_forces())[0]
     np.testing.assert_allclose(net, 0.0, atol=1e-8)
+
+
+def test_an_unknown_feedforward_word_gets_one_message(tmp_path):
+    shipped = pathlib.Path(eo.__file__).parent / "scenarios" / "plate_lift.toml"
+    text = shipped.read_text().replace('feedforward = "hold"', 'feedforward = "hld"')
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    (problem,) = info.value.problems
+    assert problem.key == "feedforward" and problem.message.endswith("got 'hld'")
+    assert "'weight', 'hold', 'none' or a table" in problem.message
