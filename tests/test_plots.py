@@ -204,3 +204,17 @@ def test_animation_gif(traj, tmp_path):
         assert gif.n_frames == 3
     with pytest.raises(ValueError, match=".gif or .mp4"):
         save_animation(traj, tmp_path / "motion.avi")
+
+
+def test_a_notebook_shows_a_figure_as_its_picture(traj):
+    """Old: without pyplot imported, a notebook showed the library's figures as
+    `<Figure size 1440x1440 with 7 Axes>`: a Figure has no picture of its own for
+    IPython's display (`_repr_png_`, which IPython asks a value for)."""
+    import io
+
+    fig = plot_coordinates(traj)
+    png = fig._repr_png_()
+    assert png.startswith(b"\x89PNG\r\n\x1a\n")
+    width, height = Image.open(io.BytesIO(png)).size
+    dpi = fig.get_dpi()
+    assert (width, height) == tuple(round(v * dpi) for v in fig.get_size_inches())

@@ -1,9 +1,11 @@
 """Shared helpers of the plots: figures without pyplot, names, poses."""
 
+import io
+
 import jax
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
+from matplotlib.figure import Figure as _MatplotlibFigure
 
 from .._models import MobileModel
 from .._naming import body_names
@@ -12,8 +14,19 @@ from .._naming import body_names
 COMPONENT_COLOURS = ("tab:red", "tab:green", "tab:blue")
 
 
+class Figure(_MatplotlibFigure):
+    """A matplotlib Figure that a notebook shows as its picture (without pyplot, a
+    notebook has no display rule for a Figure and shows its text form)."""
+
+    def _repr_png_(self) -> bytes:
+        buffer = io.BytesIO()
+        self.savefig(buffer, format="png")
+        return buffer.getvalue()
+
+
 def new_figure(width: float, height: float) -> Figure:
-    """A matplotlib Figure on the Agg canvas (no pyplot, no global state)."""
+    """A matplotlib Figure on the Agg canvas (no pyplot, no global state), shown as
+    its picture in a notebook."""
     fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)
     return fig
