@@ -268,6 +268,13 @@ def test_plots_of_the_indices(ishigami):
     )
     assert len(plot_sobol_indices(ind, "y").axes) == 1
     assert plot_sobol_heatmap(ind, "series").axes[0].get_xlabel() == "time [s]"
+    # an element without variance at any time is left out and named
+    series = results["series"].expand_dims(part=["moves", "still"], axis=2).copy()
+    series[:, :, 1] = 1.0
+    two = results.assign(series=series)
+    maps = plot_sobol_heatmap(mc.sobol_indices(two, "series", bootstrap=50), "series")
+    assert [ax.get_title() for ax in maps.axes[:-1]] == ["moves"]  # (and the bar)
+    assert "not shown: still" in maps._suptitle.get_text()
     conv = mc.sobol_convergence(results, "y", bootstrap=50)
     assert len(plot_sobol_convergence(conv, "y").axes[0].lines) == 3
     m = design_points("morris", KEY, 3, 10)

@@ -35,22 +35,31 @@ def _elements(
     """`(isel indices, label)` of every element over the axes not in `skip` whose
     values over the samples `ok` (default all) and the skipped axes vary, and the
     labels of those that do not (all of them are kept when none varies)."""
-    dims = [str(d) for d in x.dims[1:] if d not in skip]
-    shape = [x.sizes[d] for d in dims]
     ok = np.ones(x.shape[0], bool) if ok is None else np.asarray(ok)
     moving: list[tuple[dict, str]] = []
     still: list[tuple[dict, str]] = []
-    for index in np.ndindex(*shape):
-        labels = []
-        for dim, k in zip(dims, index):
-            coord = x.coords.get(dim)
-            labels.append(str(coord.values[k]) if coord is not None else str(k))
-        element = (dict(zip(dims, index)), ", ".join(labels))
+    for element in every_element(x, skip):
         values = np.asarray(x.isel(element[0]).values)[ok]
         (still if _still(values) else moving).append(element)
     if not moving:
         return still[:MAX_PANELS], []
     return moving[:MAX_PANELS], [label for _, label in still]
+
+
+def every_element(
+    x: xr.DataArray, skip: tuple[str, ...] = ()
+) -> list[tuple[dict, str]]:
+    """`(isel indices, label)` of every element over the axes of `x` after the first
+    that are not in `skip`."""
+    dims = [str(d) for d in x.dims[1:] if d not in skip]
+    elements = []
+    for index in np.ndindex(*[x.sizes[d] for d in dims]):
+        labels = []
+        for dim, k in zip(dims, index):
+            coord = x.coords.get(dim)
+            labels.append(str(coord.values[k]) if coord is not None else str(k))
+        elements.append((dict(zip(dims, index)), ", ".join(labels)))
+    return elements
 
 
 def _left_out(still: list[str]) -> str:

@@ -6,7 +6,7 @@ import numpy as np
 import xarray as xr
 from matplotlib.ticker import NullFormatter
 
-from .montecarlo import _elements, _panels
+from .montecarlo import MAX_PANELS, _elements, _left_out, _panels, every_element
 
 
 def _own(ds: xr.Dataset, key: str) -> xr.DataArray:
@@ -64,15 +64,17 @@ def plot_sobol_indices(indices: xr.Dataset, name: str, top: int = 12):
 
 def plot_sobol_heatmap(indices: xr.Dataset, name: str, index: str = "ST"):
     """The `index` (`"ST"` or `"S1"`) of every factor over time for the time
-    series `name`, one heat map per element of its other axes."""
+    series `name`, one heat map per element of its other axes; the elements
+    without variance at any time (no index) are left out and named in the title."""
     values = _own(indices, f"{index}_{name}")
     if "time" not in values.dims:
         raise ValueError(f"output {name!r} has no time axis")
     values = values.transpose("factor", "time", ...)
     t = np.asarray(values["time"].values)
-    elements, _ = _elements(
-        values.isel(factor=0, drop=True).expand_dims("x"), ("time",)
-    )
+    every = every_element(values, ("time",))
+    elements = [e for e in every if np.any(np.isfinite(values.isel(e[0]).values))]
+    still = [label or name for e, label in every if (e, label) not in elements]
+    elements = (elements or every)[:MAX_PANELS]  # none varies: blank maps say so
     n_factors = values.sizes["factor"]
     fig, axes = _panels(len(elements), width=4.6, height=0.22 * n_factors + 1.4)
     image = None
@@ -95,7 +97,8 @@ def plot_sobol_heatmap(indices: xr.Dataset, name: str, index: str = "ST"):
         ax.set_title(label or name, fontsize="medium")
     if image is not None:
         fig.colorbar(image, ax=list(axes[: len(elements)]), label=index, shrink=0.8)
-    fig.suptitle(f"{name}: {index} over time (blank: no variance)")
+    left_out = _left_out(still) if len(still) < len(every) else ""
+    fig.suptitle(f"{name}: {index} over time (blank: no variance){left_out}")
     return fig
 
 
