@@ -84,6 +84,7 @@ def _two_body(stiffness, force, y_init, max_steps=200, **options):
     )
 
 
+@pytest.mark.slow
 def test_batch_equals_vmap_of_single_runs_with_failing_elements():
     # stiff and soft grasps (different steps), a NaN force, a NaN start, and
     # max_steps between the step counts of the soft and the stiff grasps

@@ -4,6 +4,7 @@ outermost program, and the option changes no result beyond rounding."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from helpers import three_body_model, three_body_state
 
 import elasticoop as eo
@@ -66,6 +67,7 @@ def test_options_go_to_the_outermost_program_only_and_an_unknown_one_falls_back(
     np.testing.assert_array_equal(square(x + 1), (x + 1) ** 2)
 
 
+@pytest.mark.slow
 def test_the_fast_compiled_simulation_matches_one_compiled_without_options():
     model = three_body_model()
     y0 = three_body_state()
@@ -76,7 +78,9 @@ def test_the_fast_compiled_simulation_matches_one_compiled_without_options():
         return eo.simulate(model, y0, ydot0, ts, rtol=1e-10, atol=1e-12)
 
     fast = run(model)  # outermost: compiled with FAST_COMPILE
-    plain = jax.jit(run)(model)  # inside the caller's jit: no options
+    # inside the caller's jit: the caller's options, here XLA's defaults (the tests
+    # otherwise compile with the fusion emitters off, see conftest.py)
+    plain = jax.jit(run, compiler_options={"xla_cpu_use_fusion_emitters": True})(model)
     assert int(fast.n_steps) == int(plain.n_steps)
     # equal to rounding (the two programs differ in how XLA emits the loops)
     for field in ("y", "ydot"):

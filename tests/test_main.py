@@ -71,6 +71,7 @@ def test_python_dash_m_runs_the_demo():
     assert "residual" in out.stdout
 
 
+@pytest.mark.slow
 def test_command_line_answers_without_the_heavy_modules(tmp_path):
     """`--version` and `--help` import neither JAX nor the scientific stack, and
     `check` (which solves the scenario's static equilibrium) none of what running,

@@ -726,7 +726,7 @@ def test_bad_input_is_named(case):
         make()
 
 
-def test_bad_queries_of_results_are_named(results):
+def test_bad_queries_of_results_are_named(study, results):
     with pytest.raises(ValueError, match="threshold must not be NaN"):
         mc.exceedance_probability(results, "peak_force", np.nan)
     with pytest.raises(ValueError, match=r"threshold of shape \(4,\) does not"):
@@ -740,7 +740,7 @@ def test_bad_queries_of_results_are_named(results):
     # a NumPy integer is an integer
     np.testing.assert_array_equal(
         mc.run_study(
-            _study(options=COMPARED),
+            study,
             chunk_size=np.int64(8),
             batch_width=BATCH_WIDTH,
             progress=False,

@@ -333,6 +333,7 @@ def test_rank_correlations_rank_what_the_output_follows():
     assert rho.attrs["n"] == 5
 
 
+@pytest.mark.slow
 def test_time_and_solver_overrides_are_checked_and_followed(tmp_path):
     """A `[time]` span beyond the scenario's force samples and a step budget above
     the limit are problems of the file (they raised inside the study), and a study

@@ -92,6 +92,7 @@ def _failing(monkeypatch, code, marker):
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/fd"), reason="needs /proc")
+@pytest.mark.slow
 def test_a_full_disk_keeps_the_stored_chunks(study, tmp_path, monkeypatch, capsys):
     """Before: `OSError: [Errno 28]` from the chunk's write, without the file's
     name (the command line called it a bug in elasticoop)."""

@@ -136,6 +136,7 @@ def test_a_study_without_spread_stays_at_rest(results):
     np.testing.assert_allclose(y, np.broadcast_to(y_eq, y.shape), atol=START_ATOL)
 
 
+@pytest.mark.slow
 def test_the_start_rule_is_checked_and_recorded():
     study = _study(initial="equilibrium")
     assert study.describe()["initial"] == "equilibrium"

@@ -72,7 +72,8 @@ rest_default_many = fast_compile_jit(
 )
 
 
-@pytest.mark.parametrize("held", [pytest.param(None, marks=pytest.mark.slow), MASK])
+@pytest.mark.slow
+@pytest.mark.parametrize("held", [None, MASK])
 def test_rest_state_is_the_static_equilibrium_under_jit_and_vmap(held):
     kz = jnp.array([600.0, 1400.0])
     ys = (rest_default_many if held is None else rest_many)(kz)
@@ -84,6 +85,7 @@ def test_rest_state_is_the_static_equilibrium_under_jit_and_vmap(held):
         assert float(y[0, 2]) < 1.0  # it sags
 
 
+@pytest.mark.slow
 def test_rest_state_derivative_matches_finite_differences():
     """d Y_rest / d k (implicit function theorem) in forward and reverse mode, against
     central differences of `static_equilibrium` (its own solver, converged tightly)."""

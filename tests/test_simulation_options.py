@@ -29,6 +29,7 @@ def test_the_defaults():
     assert eo.SimulationOptions().max_steps == 100_000
 
 
+@pytest.mark.slow
 def test_simulate_takes_options_and_the_old_keywords_with_a_warning():
     new = eo.simulate(MODEL, Y0, YDOT0, TS, options=OPTIONS)
     match = r"simulate\(solver, rtol, atol, max_steps=\.\.\.\) is deprecated"
