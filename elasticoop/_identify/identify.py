@@ -104,7 +104,9 @@ def identify(
       optimiser, e.g. `optax.adam(1e-2)`.
     - `init`: `"equation_error"` (default) or `"model"`. With
       `"equation_error"` the fit starts from the `equation_error` estimate
-      (entries outside the transform's range taken from the model) when its
+      (entries outside the transform's range, and stiffnesses and dampings
+      beyond what the samples resolve, `plausible.unresolved`, taken from the
+      model) when its
       simulated loss is not above that of the model's values, and from the
       model's values otherwise: with noisy data the differentiated samples can
       spoil the linear estimate, and the start that fits better is kept (a note
