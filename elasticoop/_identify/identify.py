@@ -22,6 +22,7 @@ from .initial_state import fitted_parts, initial_rule, initial_state_names
 from .misfit import MISFIT_THRESHOLD, misfit_check
 from .optimisers import Trace, levenberg_marquardt, optax_minimise
 from .parameters import free_parameters
+from .plausible import RESOLUTION, unresolved
 from .residuals import (
     FitProblem,
     initial_states,
@@ -103,7 +104,9 @@ def identify(
       optimiser, e.g. `optax.adam(1e-2)`.
     - `init`: `"equation_error"` (default) or `"model"`. With
       `"equation_error"` the fit starts from the `equation_error` estimate
-      (entries outside the transform's range taken from the model) when its
+      (entries outside the transform's range, and stiffnesses and dampings
+      beyond what the samples resolve, `plausible.unresolved`, taken from the
+      model) when its
       simulated loss is not above that of the model's values, and from the
       model's values otherwise: with noisy data the differentiated samples can
       spoil the linear estimate, and the start that fits better is kept (a note
@@ -287,16 +290,15 @@ def identify(
     candidates = []  # (label, parameters), evaluated by their simulated loss
     if init == "equation_error":
         try:
-            guess = free.current(
-                equation_error(
-                    model,
-                    experiments,
-                    where,
-                    window=window,
-                    polyorder=polyorder,
-                    mask=mask,
-                )
+            estimated = equation_error(
+                model,
+                experiments,
+                where,
+                window=window,
+                polyorder=polyorder,
+                mask=mask,
             )
+            guess = free.current(estimated)
         except ValueError as err:  # e.g. too many missing samples to differentiate
             notes.append(f"no equation-error start ({err}); started from the model")
             guess = None
@@ -307,6 +309,16 @@ def identify(
                     "equation-error estimate outside the parameter range for "
                     + ", ".join(outside)
                     + "; took the model's values there"
+                )
+            guess, beyond = _resolved(free, model, estimated, guess, start, experiments)
+            if beyond:
+                notes.append(
+                    "equation-error estimate beyond what the samples resolve for "
+                    + ", ".join(beyond)
+                    + " (a natural frequency above "
+                    + f"{RESOLUTION:g}x the Nyquist frequency, or a relaxation time "
+                    + f"below 1/{RESOLUTION:g} of the sample interval); took the "
+                    "model's values there"
                 )
             candidates.append(("the equation-error start", guess))
     u_start: np.ndarray | None = None  # the model's values, reparameterised
@@ -464,6 +476,14 @@ def identify(
         problem, trace = refit_problem, _merge(trace, refit)
         analysis = _analyse(trace, problem, held, held_stderr, *settings)
     notes += budget.notes
+    if trace.at_bound is not None and np.any(trace.at_bound):
+        notes.append(
+            f"at the lower end of their range (set there when the linearised fit "
+            f"in each alone put it beyond, and that lowered the loss; then held, as "
+            f"bounded least squares holds an active bound): "
+            f"{', '.join(_names(free.names, trace.at_bound))}; their standard "
+            f"errors are those of the linearisation at that end"
+        )
     unc, estimate, initial_stderr = analysis
     estimate[held] = (start if u_start is not None else initial)[held]
     dp_du = _dp_du(free, trace.u)
@@ -737,6 +757,29 @@ def _optimizer(method):
     raise ValueError(
         f"method must be one of {METHODS} or an optax optimiser, got {method!r}"
     )
+
+
+def _resolved(free, model, estimated, guess, fallback, experiments):
+    """`guess` with the model's values (`fallback`) where the equation-error
+    estimate is beyond what the samples resolve (`plausible.unresolved`, at the
+    coarsest sample interval of the experiments), and the names of those
+    entries."""
+    dt = max(float(np.max(np.diff(np.asarray(e.ts)))) for e in experiments)
+    flags = unresolved(estimated, dt)
+    if flags is None:
+        return guess, []
+    stiff, damped = flags
+    marked = eqx.tree_at(
+        lambda m: (m.stiffness, m.damping),
+        estimated,
+        (jnp.asarray(stiff, jnp.float64), jnp.asarray(damped, jnp.float64)),
+    )
+    # the flags mean something for the stiffness and damping leaves only
+    names = free.names
+    bad = np.asarray(free.current(marked)) > 0.5
+    bad &= np.array([n.startswith(("stiffness", "damping")) for n in names])
+    out = np.where(bad, np.asarray(fallback), np.asarray(guess))
+    return out, _names(names, bad)
 
 
 def _within_range(free, guess, fallback):

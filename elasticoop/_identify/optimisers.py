@@ -33,6 +33,7 @@ import optax
 import optimistix as optx
 
 from .._status import Status
+from .parameters import FreeParameters
 from .residuals import (
     FitProblem,
     Runs,
@@ -41,6 +42,7 @@ from .residuals import (
     residuals,
     residuals_by_experiment,
     residuals_jacobian_and_runs,
+    with_held,
     with_jacobian_loss_limit,
     with_scaling,
 )
@@ -51,6 +53,15 @@ TAU = 1e-3
 # Consecutive rejected trial steps (each shrinks the trust region 4x) after which
 # no lower loss exists within numerical resolution: the minimum is found.
 MAX_REJECTIONS = 12
+# A parameter found at the lower end of its range (see `_at_bound`) is set to this
+# fraction of its distance from that end: its effect on the residuals is then this
+# fraction of what it was, zero to the accuracy of any simulation.
+BOUND_FRACTION = 1e-12
+# The statistical stop: the iteration has converged where the full Gauss-Newton
+# step from the accepted point would move the parameters by at most this many
+# standard errors (in the metric of their covariance, along any direction), i.e.
+# would lower the loss by at most STAT_STEP**2 / 2 units of the noise variance.
+STAT_STEP = 0.1
 # Halvings of an optax update whose loss is not finite before giving up.
 MAX_HALVINGS = 30
 # A plain optimiser (no line search) takes steps set by its learning rate, so a
@@ -83,6 +94,8 @@ class Trace:
     wall_time: float = 0.0
     residual: np.ndarray | None = None  # at the optimum, when the method has them
     jacobian: np.ndarray | None = None  # d residual / d u at the optimum
+    # per free parameter: set at the lower end of its range (`_at_bound`)
+    at_bound: np.ndarray | None = None
 
 
 class _Progress:
@@ -260,6 +273,61 @@ def _conclude(trace: Trace, expect_decrease: bool = True) -> Trace:
     return trace
 
 
+def _at_bound(free: FreeParameters, held, u, r, J_u) -> np.ndarray:
+    """The free parameters (not `held`) that a bounded least-squares step puts at
+    the lower end $l$ of their range: where the residuals' linearisation in that
+    physical parameter alone, $r + J_{p,k} (p_k' - p_k)$, is least at
+    $p_k' \\le l$, i.e. $g_k = J_{p,k}^T r > 0$ and
+    $g_k \\ge |J_{p,k}|^2 (p_k - l)$, with $J_{p,k} = J_{u,k} / (dp_k/du_k)$ (for
+    $p = e^u$: $J_{u,k}^T r \\ge |J_{u,k}|^2$). In $u$ the end of the range is
+    infinitely far: without this test such a parameter drifts towards it by a
+    bounded step per iteration, and the fit crawls."""
+    n_p = free.size
+    lower = free.lower_bounds()
+    uu = jnp.asarray(np.asarray(u)[:n_p])
+    p = np.asarray(free.physical(uu))
+    dp_du = np.asarray(jax.jacfwd(free.physical)(uu)).diagonal()
+    J = np.asarray(J_u)[:, :n_p]
+    g = J.T @ np.asarray(r)
+    c = np.sum(J**2, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        reach = c * (p - lower) / dp_du
+        out = (g > 0) & (g >= reach) & (dp_du > 0)
+    # one that has drifted to the end already (p = l to machine precision)
+    out = (out | ~(p > lower)) & np.isfinite(lower)
+    return out & ~np.asarray(held, dtype=bool)
+
+
+def _to_bound(free: FreeParameters, u, mask, u_start) -> np.ndarray:
+    """`u` with the parameters of `mask` set to `BOUND_FRACTION` of the distance
+    of their start (`u_start`) from the lower end of their range."""
+    n_p = free.size
+    u = np.array(u, dtype=np.float64)
+    p0 = np.asarray(free.physical(jnp.asarray(np.asarray(u_start)[:n_p])))
+    lower = free.lower_bounds()
+    near = lower + BOUND_FRACTION * (p0 - lower)
+    # invert only the entries of `mask` (the others at a value inside the range)
+    inside = np.asarray(free.physical(jnp.zeros(n_p)))
+    u[:n_p] = np.where(mask, free.unconstrained(np.where(mask, near, inside)), u[:n_p])
+    return u
+
+
+_loss = eqx.filter_jit(loss)
+
+
+def _gauss_newton_gain(r, J) -> float:
+    """$\\tfrac12(|r|^2 - |r + J\\delta|^2)$ for the Gauss-Newton step
+    $\\delta = -J^+ r$ (least squares, directions of $J$ below 1e-12 of its
+    largest singular value left out): the decrease of the loss its linearisation
+    predicts. With residuals in units of the noise, $2\\times$ it is
+    $\\delta^T J^T J \\delta$, the squared length of the step in the metric of the
+    parameters' inverse covariance (in standard errors)."""
+    r, J = np.asarray(r), np.asarray(J)
+    U, sv, _ = np.linalg.svd(J, full_matrices=False)
+    keep = sv > 1e-12 * (sv[0] if sv.size else 0.0)
+    return float(0.5 * np.sum((U[:, keep].T @ r) ** 2))
+
+
 def levenberg_marquardt(
     problem: FitProblem,
     u0,
@@ -278,7 +346,20 @@ def levenberg_marquardt(
     trial point; a trial that does not lower the loss is rejected. After every
     accepted step the simulations' step budget follows the new point (`budget`).
     `expect_decrease=False`: a start at an optimum, whose loss need not fall, is
-    no stall (see `_conclude`)."""
+    no stall (see `_conclude`).
+
+    Parameters at the end of their range: once the iteration has slowed (an
+    accepted step lowering the loss by less than $L / (N - n)$, one unit of
+    $\\chi^2$ at the noise level the loss implies), the parameters that a bounded
+    least-squares step would put at the lower end of their range (`_at_bound`:
+    e.g. a damping the data would rather have negative) are tried there, all at
+    once (`BOUND_FRACTION` of their distance from it; one simulation). Where that
+    lowers the loss they are held there, as a bounded least-squares method holds
+    its active bounds (`Trace.at_bound`), and the iteration goes on with the
+    others from there, its trust region as it was. In the log-parameters $u$ of
+    the fit the end of the range is infinitely far away: without this such a
+    parameter drifts towards it by a bounded step per iteration, and the fit
+    crawls without converging."""
     start = time.perf_counter()
     # The convergence test is ours (`_small_step`), not optimistix's Cauchy test.
     search, descent = _lm_parts()
@@ -311,6 +392,10 @@ def levenberg_marquardt(
     # trial is again rejected for its loss (the region is bounded by the loss).
     rejected_in_row = 0
     shrunk_by_failures = False
+    n_p = problem.free.size
+    at_bound = np.zeros(n_p, dtype=bool)
+    snapped = False  # the last accepted point is the one set at bounds
+    n_residuals, n_live = int(J0.shape[0]), int(np.sum(live))
     for _ in range(max_steps):
         u_prev = u
         first = trace.n_iterations == 0
@@ -318,6 +403,7 @@ def levenberg_marquardt(
             search, descent, state, problem
         )
         u = u0_arr + u_scale * state.y
+        u = u.at[:n_p].set(jnp.where(problem.held, problem.u_held, u[:n_p]))
         trace.n_simulations += n_experiments
         trace.n_trials += not first
         value = float(value) / scale**2
@@ -332,7 +418,62 @@ def levenberg_marquardt(
                 problem, int(np.max(np.asarray(runs.steps))), trace.n_iterations
             )
             last = trace.loss_history[-2] if len(trace.loss_history) > 1 else None
-            tested = last is not None and not shrunk_by_failures
+            tested = last is not None and not shrunk_by_failures and not snapped
+            snapped = False
+            slowed = last is not None and last - value < value / max(
+                n_residuals - n_live, 1
+            )
+            if slowed:
+                r, Jv = _lm_final(state)
+                mask = _at_bound(
+                    problem.free,
+                    problem.held,
+                    np.asarray(u),
+                    r / scale,
+                    Jv / scale / u_scale[None, :],
+                )
+                if np.any(mask):
+                    u_try = _to_bound(
+                        problem.free, np.asarray(u), mask, np.asarray(u0_arr)
+                    )
+                    trial = with_held(
+                        problem,
+                        np.asarray(problem.held) | mask,
+                        np.where(mask, u_try[:n_p], np.asarray(problem.u_held)),
+                    )
+                    trace.n_simulations += n_experiments
+                    trace.n_trials += 1
+                    if float(_loss(jnp.asarray(u_try), trial)) / scale**2 < value:
+                        # re-evaluate there (an accepted first step keeps the
+                        # trust region); its Jacobian has no columns for them
+                        at_bound |= mask
+                        problem = trial
+                        state = eqx.tree_at(
+                            lambda s: (s.first_step, s.y_eval),
+                            state,
+                            (jnp.array(True), state.y),
+                        )
+                        snapped = True
+                        names = [n for n, m in zip(problem.free.names, mask) if m]
+                        show(
+                            trace.n_iterations,
+                            value,
+                            gnorm,
+                            "to bounds: " + ", ".join(names),
+                        )
+                        continue
+            if tested:
+                r, Jv = _lm_final(state)
+                s2 = 2.0 * value / max(n_residuals - n_live, 1)
+                gain = _gauss_newton_gain(r / scale, Jv / scale)
+                if gain <= 0.5 * STAT_STEP**2 * s2:
+                    trace.status = "converged"
+                    trace.reason = (
+                        f"statistical stop: the Gauss-Newton step would lower the "
+                        f"loss by {gain:.3g}, a move of at most {STAT_STEP:g} "
+                        f"standard errors"
+                    )
+                    break
             if tested and _small_step(u_prev, u, last, value, xtol, ftol):
                 trace.status = "converged"
                 trace.reason = f"last step below xtol = {xtol} or ftol = {ftol}"
@@ -363,6 +504,20 @@ def levenberg_marquardt(
     trace.residual = r / scale
     trace.jacobian = Jv / scale / u_scale[None, :]
     trace.u = np.asarray(u)
+    trace.at_bound = at_bound
+    if np.any(at_bound):
+        # held here, they have no Jacobian columns: the caller computes the
+        # Jacobian at the end with them free
+        trace.jacobian = None
+        trace.reason = "; ".join(
+            x
+            for x in (
+                trace.reason,
+                f"{int(np.sum(at_bound))} parameters set at the lower end of "
+                f"their range (at_bound)",
+            )
+            if x
+        )
     trace.wall_time = time.perf_counter() - start
     return _conclude(trace, expect_decrease)
 

@@ -180,6 +180,20 @@ class FreeParameters(eqx.Module):
             leaves[index] = value.astype(leaf.dtype)
         return jax.tree.unflatten(treedef, leaves)
 
+    def lower_bounds(self) -> np.ndarray:
+        """The lower end of each free parameter's range (one flat vector): 0 for
+        `Log` and `Softplus`, $l$ for `Bounded`, $-\\infty$ for `Identity`."""
+        out = []
+        for t, n in zip(self.transforms, self.counts):
+            if isinstance(t, Log | Softplus):
+                low = 0.0
+            elif isinstance(t, Bounded):
+                low = t.lower
+            else:
+                low = -np.inf
+            out.append(np.full(n, low))
+        return np.concatenate(out) if out else np.zeros(0)
+
     def unconstrained(self, p) -> np.ndarray:
         """$u = g^{-1}(p)$ for physical values `p` (one flat vector); a value
         outside its transform's range is a `ValueError` naming the entry (e.g.
