@@ -24,6 +24,13 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   against one forward run (the loss, jitted); and its two halves timed alone: the
   forward run that records the accepted steps (`record`) and the backward pass
   (`backward`), with the run's accepted steps.
+  What bounds it: `product_over_field` ($c$), the vector-Jacobian product of
+  `simulate`'s vector field in the state and the 24 parameters against the field
+  alone, each `n_evals` times in a compiled loop whose body touches single states
+  only (as the adjoint applies it), at a state of the run; and `bound`, the
+  gradient's cost in forward runs if the backward pass cost only its products and
+  their replayed evaluations, $1 + \\tfrac{s'}{s}(1 + c)$, with $s'$ the products and
+  $s$ the evaluations per step (14 and 13 for Dopri8).
 - `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
   `vmap`-ped forward run (both at the defaults: the forward run in the batch loop).
 
@@ -145,7 +152,45 @@ def vmap_throughput(batch: int, t_end: float, n_out: int, rounds: int, n_scipy: 
     }
 
 
-def gradients(t_index: int | None, width: int, rounds: int):
+def product_loops(s, traj, n_evals: int) -> dict:
+    """`{name: (fn, args)}`: `n_evals` evaluations of `simulate`'s vector field
+    (`field`) and of its vector-Jacobian product in the state and the stiffness and
+    damping (`product`), in compiled loops on single states: each at the run's
+    middle output, nudged by the previous result (so that nothing is computed once
+    outside the loop)."""
+    from gradients import field_of_parameters, parameters
+
+    from elasticoop import _simulate
+
+    field = field_of_parameters(s)
+    states = jax.vmap(_simulate._pack)(traj.y, traj.ydot, traj.work, traj.dissipated)
+    middle = states.shape[0] // 2
+    t0, x0, x_bar0 = traj.ts[middle], states[middle], states[middle + 1]
+
+    def loop(body):
+        @jax.jit
+        def run(params):
+            start = (jnp.zeros_like(x0), jnp.zeros(()))
+            return jax.lax.fori_loop(0, n_evals, lambda k, c: body(params, c), start)
+
+        return run
+
+    def evaluate(params, carry):
+        x_bar, acc = carry
+        return field(t0 + 1e-12 * acc, x0 + 1e-12 * x_bar, params), acc
+
+    def product(params, carry):
+        x_bar, acc = carry
+        t, x = t0 + 1e-12 * acc, x0 + 1e-12 * x_bar
+        _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
+        x_bar, p_bar = pullback(x_bar0)
+        return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
+
+    args = (parameters(s.model),)
+    return {"field": (loop(evaluate), args), "product": (loop(product), args)}
+
+
+def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_000):
     s = eo.default_scenario()
     ts = s.ts if t_index is None else s.ts[:t_index]
     params = (s.model.stiffness, s.model.damping)
@@ -156,7 +201,8 @@ def gradients(t_index: int | None, width: int, rounds: int):
 
     target = trajectory(params) + 1e-3
     model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
-    steps = eo.simulate(model, s.y_init, s.ydot_init, ts, forces=s.forces).n_steps
+    traj = eo.simulate(model, s.y_init, s.ydot_init, ts, forces=s.forces)
+    steps = traj.n_steps
 
     def loss(params):
         return jnp.sum((trajectory(params) - target) ** 2)
@@ -175,7 +221,10 @@ def gradients(t_index: int | None, width: int, rounds: int):
         "vmap_forward": (jax.jit(jax.vmap(loss)), (sets,)),
         "vmap_grad": (jax.jit(jax.vmap(jax.grad(loss))), (sets,)),
     }
+    calls.update(product_loops(s, traj, n_evals))
     times = interleaved_best_times(calls, rounds)
+    c = times["product"] / times["field"]
+    stages = eo.SimulationOptions().diffrax_solver().tableau.num_stages
     return {
         "problem": f"default_scenario(), {float(ts[-1]):g} s, {len(ts)} outputs, "
         f"24 parameters; vmap over {width} parameter sets",
@@ -185,6 +234,10 @@ def gradients(t_index: int | None, width: int, rounds: int):
         "steps": int(steps),
         "record_over_forward": times["record"] / times["forward"],
         "backward_over_forward": times["backward"] / times["forward"],
+        "field_us": 1e6 * times["field"] / n_evals,
+        "product_us": 1e6 * times["product"] / n_evals,
+        "product_over_field": c,
+        "bound": 1 + stages / (stages - 1) * (1 + c),
         "vmap_forward_ms": 1e3 * times["vmap_forward"],
         "vmap_grad_ms": 1e3 * times["vmap_grad"],
         "vmap_grad_over_vmap_forward": times["vmap_grad"] / times["vmap_forward"],
@@ -194,7 +247,7 @@ def gradients(t_index: int | None, width: int, rounds: int):
 def run(quick: bool = False) -> dict:
     if quick:
         vmap = vmap_throughput(8, 0.2, 11, 1, 2)
-        grad = gradients(11, 2, 1)
+        grad = gradients(11, 2, 1, n_evals=100)
     else:
         vmap = vmap_throughput(1024, 2.0, 21, 3, 16)
         grad = gradients(None, 8, 5)

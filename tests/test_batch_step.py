@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from elasticoop._integrate.rk_step import explicit_step, stage_buffer
+from elasticoop._integrate.rk_step import dense_weights, explicit_step, stage_buffer
 
 
 def _field(t, y, args=None):
@@ -60,3 +60,46 @@ def test_an_implicit_tableau_is_refused():
             diffrax.Kvaerno3().tableau, _field, jnp.zeros(2), jnp.ones(2),
             jnp.zeros((2, 3)), None, jnp.zeros((4, 2, 3)),
         )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "solver",
+    [diffrax.Tsit5(), diffrax.Dopri8(), diffrax.Heun()],
+    ids=["tsit5", "dopri8", "heun"],
+)
+def test_the_replay_step_keeps_the_stage_inputs(solver):
+    """The adjoint's replay: the stages' inputs $y_i = y_0 + \\sum_j a_{ij} k_j$
+    kept, the last stage left out where $y_1$ does not use it, $y_1$ unchanged."""
+    batch = 4
+    y0 = jax.random.normal(jax.random.key(1), (batch, 5))
+    t0 = jnp.linspace(0.0, 1.0, batch)
+    t1 = t0 + 0.02
+    tableau = solver.tableau
+    buffer = stage_buffer(tableau, y0)
+    full = explicit_step(tableau, _field, t0, t1, y0, None, buffer)
+    last = bool(tableau.b_sol[-1] != 0)
+    replay = explicit_step(
+        tableau, _field, t0, t1, y0, None, buffer, stage_inputs=True,
+        evaluate_last=last,
+    )  # fmt: skip
+    # (the last input formed outside the stages' loop: rounded alike, not bitwise)
+    atol = 4 * np.finfo(float).eps * float(jnp.max(jnp.abs(y0)))
+    np.testing.assert_allclose(replay.y1, full.y1, rtol=0, atol=atol)
+    assert (replay.y_error is None) == (not last)
+    rows = [np.zeros(1), *tableau.a_lower]
+    for i, row in enumerate(rows):
+        want = y0 + sum(a * full.ks[j] for j, a in enumerate(row))
+        np.testing.assert_allclose(replay.inputs[i], want, rtol=0, atol=atol)
+
+
+def test_the_dense_weights_give_diffrax_dense_output():
+    solver = diffrax.Dopri8()
+    y0 = jax.random.normal(jax.random.key(2), (3,))
+    term = diffrax.ODETerm(_field)
+    state = solver.init(term, 0.2, 0.25, y0, None)
+    y1, _, dense, _, _ = solver.step(term, 0.2, 0.25, y0, None, state, False)
+    for t in (0.2, 0.213, 0.25):
+        w = dense_weights(solver, 0.2, 0.25, t)
+        got = w[0] * y0 + w[1] * y1 + jnp.tensordot(w[2:], dense["k"], 1)
+        want = solver.interpolation_cls(t0=0.2, t1=0.25, **dense).evaluate(t)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)

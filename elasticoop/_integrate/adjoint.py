@@ -30,7 +30,10 @@ arrays (a state or less each). XLA's CPU runtime runs the operations of such a
 branch one after the other; the loop's body, which touches large arrays, it runs
 as a graph, handing work to its thread pool and back, which makes a product
 cost more applied in the body itself (`benchmarks/gradients.py`). The stage inputs
-are replayed `_BLOCK` steps at a time (`vmap`), and the outputs' shares are summed
+are replayed `_BLOCK` steps at a time, in the Runge-Kutta step of the batch loop
+(`rk_step.explicit_step`, the block of steps as its batch: one stage-time rule and
+one dense-output rule, `stage_time` and `dense_weights`, for the forward runs and
+the replay), and the outputs' shares are summed
 per step beforehand (a scan over the outputs that starts again at each step's
 first), both quicker than replaying step by step or looping over each step's
 outputs.
@@ -51,12 +54,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array
 
-from .._compat import dense_interpolation, dense_stages
+from .._compat import dense_stages
 from .recorder import AcceptedSteps, StepLayout
+from .rk_step import dense_weights, explicit_step, stage_buffer, stage_time
 
-# Steps whose stage inputs the backward pass replays at once (`vmap`).
+# Steps whose stage inputs the backward pass replays at once (a batch).
 _BLOCK = 64
 
 
@@ -139,19 +142,6 @@ def check_solver(solver: Any) -> None:
         )
 
 
-def _interpolation_weights(
-    solver: diffrax.AbstractSolver, t0: Array, t1: Array, tau: Array, stages: int
-) -> Array:
-    """The coefficients of $(x_n, x_{n+1}, K_1, \\dots, K_s)$ in the solver's dense
-    output at `tau` in the step from `t0` to `t1` (it is linear in them)."""
-
-    def value(c):
-        interpolation = dense_interpolation(solver, t0, t1, c[0], c[1], c[2:])
-        return interpolation.evaluate(tau)
-
-    return jax.grad(value)(jnp.zeros(stages + 2, dtype=jnp.result_type(t0)))
-
-
 def stepwise_solve(
     run: Callable[[Any, bool], tuple[Any, AcceptedSteps | None]],
     vector_field: Callable,
@@ -181,7 +171,7 @@ def stepwise_solve(
     assert isinstance(tableau, diffrax.ButcherTableau)  # (`check_solver`)
     b = np.asarray(tableau.b_sol, dtype=float)
     a = [np.asarray(row, dtype=float) for row in tableau.a_lower]
-    c = np.concatenate([[0.0], np.asarray(tableau.c, dtype=float)])
+    c = np.concatenate([[tableau.c1], np.asarray(tableau.c, dtype=float)])
     stages = len(b)
     # whether stage i's increment enters the step's result or a later stage (else
     # only the dense output, and its product is taken only when an output has it)
@@ -226,21 +216,28 @@ def stepwise_solve(
         def f(t, x, d):
             return vector_field(t, x, eqx.combine(d, other_args, static.args))
 
-        def replay_step(k, x):
-            """The inputs $X_i$ of step `k`'s stages from its start state `x`, and
-            its end state $x + \\sum_i b_i K_i$."""
-            t0, t1 = t_start[k], t_end[k]
-            h = t1 - t0
-            inputs, increments = [x], []
-            for i in range(stages):
-                if i < stages - 1 or b[i] != 0:
-                    t = _stage_time(t0, t1, h, c[i])
-                    increments.append(h * f(t, inputs[i], diff_args))
-                if i < stages - 1:
-                    terms = [a[i][j] * increments[j] for j in range(i + 1) if a[i][j]]
-                    inputs.append(x + sum(terms))
-            x_next = x + sum(b[i] * k_i for i, k_i in enumerate(increments) if b[i])
-            return jnp.stack(inputs), x_next
+        def field_of_batch(t, x):
+            return jax.vmap(lambda t, x: f(t, x, diff_args))(t, x)
+
+        def replay_steps(ks, x):
+            """Steps `ks` (`(width,)`) replayed from their start states `x`
+            (`(width, state)`), in the Runge-Kutta step of the batch loop: the
+            stages' inputs $X_i$ (`(width, stages, state)`) and the end states
+            $x + \\sum_i b_i K_i$. (The last stage is evaluated only where the
+            end state uses it: the backward pass does not need its vector field.)"""
+            step = explicit_step(
+                tableau,
+                field_of_batch,
+                t_start[ks],
+                t_end[ks],
+                x,
+                None,
+                stage_buffer(tableau, x),
+                stage_inputs=True,
+                evaluate_last=bool(b[-1] != 0),
+            )
+            assert step.inputs is not None  # (`stage_inputs=True`)
+            return jnp.moveaxis(step.inputs, 0, 1), step.y1
 
         def step_back(t0, t1, has_output, share, inputs, x_bar, p_bar):
             """The cotangents before a step from those after it, given the step's
@@ -252,8 +249,7 @@ def stepwise_solve(
             h = t1 - t0
             x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
             b_i, a_i = jnp.asarray(b_row, h.dtype), jnp.asarray(a_columns, h.dtype)
-            times = t0 + jnp.asarray(c, t0.dtype) * h
-            times = jnp.where(jnp.asarray(c) == 1, t1, times)  # exactly t_{n+1}
+            times = jnp.stack([stage_time(t0, t1, c_i) for c_i in c])
 
             def product(i, k_bar):
                 _, pullback = jax.vjp(
@@ -298,7 +294,7 @@ def stepwise_solve(
 
         def replay(top):
             """The stage inputs of steps `top - _BLOCK + 1 ... top` (clipped at 0),
-            replayed at once (`vmap`) from their start states: kept ones, or
+            replayed at once (a batch) from their start states: kept ones, or
             past the first `layout.kept` steps computed one after the other from
             the last kept state before them."""
             ks = jnp.maximum(top - _BLOCK + 1 + jnp.arange(_BLOCK, dtype=jnp.int32), 0)
@@ -312,7 +308,7 @@ def stepwise_solve(
                     # (steps before `first` write row 0, which `first` overwrites)
                     row = jnp.maximum(k - first, 0)
                     starts = jax.lax.dynamic_update_index_in_dim(starts, x, row, 0)
-                    return replay_step(k, x)[1], starts
+                    return replay_steps(k[None], x[None])[1][0], starts
 
                 # (no step to advance while the block is among the kept steps)
                 stop = jnp.where(top < layout.kept, start, top + 1)
@@ -320,7 +316,7 @@ def stepwise_solve(
                     start, stop, advance, (y_start[slot], starts)
                 )
                 starts = jnp.where((ks < layout.kept)[:, None], starts, chained)
-            return jax.vmap(lambda k, x: replay_step(k, x)[0])(ks, starts)
+            return replay_steps(ks, starts)[0]
 
         def back_through(k, inputs, x_bar, p_bar):
             """The cotangents before step `k` from those after it (unchanged if
@@ -445,9 +441,9 @@ def stepwise_solve(
         # (the end state and the slots after it come last: in the last step, with
         # no weight)
         where = jnp.where(reached, where, last)
-        weights = jax.vmap(
-            lambda t0, t1, t: _interpolation_weights(solver, t0, t1, t, stages)
-        )(t_start[where], t_end[where], tau)
+        weights = jax.vmap(lambda t0, t1, t: dense_weights(solver, t0, t1, t))(
+            t_start[where], t_end[where], tau
+        )
         weights = jnp.where(reached[:, None] & (n > 0), weights, 0.0)
 
         # each output's share of the cotangents of (x_n, x_{n+1}, K_1 ... K_s) of
@@ -495,15 +491,6 @@ def _vmap_as(fn: Callable, batched_fn: Callable) -> Callable:
 
 def _is_none(value: Any) -> bool:
     return value is None
-
-
-def _stage_time(t0: Array, t1: Array, h: Array, c_i: float) -> Array:
-    """$t_n + c_i h$, exactly $t_{n+1}$ for $c_i = 1$ (as diffrax's stages)."""
-    if c_i == 0:
-        return t0
-    if c_i == 1:
-        return t1
-    return t0 + c_i * h
 
 
 _NOT_DIFFERENTIATED = {

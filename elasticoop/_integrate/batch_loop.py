@@ -44,10 +44,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
-from .._compat import dense_interpolation, wrapped_term
+from .._compat import wrapped_term
 from .outcome import Outcome, results_where
 from .recorder import AbstractStepRecorder, AcceptedSteps
-from .rk_step import by_row, explicit_step, stage_buffer
+from .rk_step import by_row, dense_weights, explicit_step, stage_buffer
 
 RESULTS = diffrax.RESULTS
 
@@ -389,7 +389,7 @@ def batch_solve(
                 lambda: _select(redo, field(arrays, s.tprev, s.y), f0),
                 lambda: f0,
             )
-        y1, y_error, ks, f_last = explicit_step(
+        y1, y_error, ks, f_last, _ = explicit_step(
             tableau,
             partial(field, arrays),
             s.tprev,
@@ -565,22 +565,18 @@ def _interpolation(
     $y_0$, $y_1$ and stage increments $k_i = h f_i$:
     $y(t) = c_0 y_0 + c_1 y_1 + \\sum_i c_{2+i} k_i$. The coefficients $c$ of each
     sample are the gradient of the interpolant with respect to $y_0$, $y_1$ and the
-    $k_i$ (`vmap`-ed over the samples, a few numbers each), and the sum runs on the
-    whole batch: `vmap` of the interpolant itself contracts each sample's stages on
-    its own, slower in `benchmarks/loop.py`'s batch loop. (The interpolant of
-    the unit vectors gives the same coefficients, but through a dot product with
-    the identity, which XLA's CPU backend hands to a matrix kernel, where the
-    gradient's products fuse.)"""
+    $k_i$ (`dense_weights`, `vmap`-ed over the samples, a few numbers each), and the
+    sum runs on the whole batch: `vmap` of the interpolant itself contracts each
+    sample's stages on its own, slower in `benchmarks/loop.py`'s batch loop. (The
+    interpolant of the unit vectors gives the same coefficients, but through a dot
+    product with the identity, which XLA's CPU backend hands to a matrix kernel,
+    where the gradient's products fuse.)"""
     stages = jax.tree.leaves(dense["k"])[0].shape[0]
     dtype = jax.tree.leaves(dense["y0"])[0].dtype
 
     def coefficients(t0, t1, t):
-        def value(basis):
-            return dense_interpolation(solver, t0, t1, **basis).evaluate(t)
-
-        zero = jnp.zeros((), dtype)
-        c = jax.grad(value)(dict(y0=zero, y1=zero, k=jnp.zeros(stages, dtype)))
-        return (c["y0"], c["y1"], *(c["k"][i] for i in range(stages)))
+        c = dense_weights(solver, t0, t1, t)
+        return tuple(c[i] for i in range(2 + stages))
 
     # The terms whose coefficient is zero wherever the interpolant is evaluated
     # (Dopri8's $y_1$ and $k_2, ..., k_5$; Tsit5's $y_1$): each coefficient is a
