@@ -16,6 +16,8 @@ system (many solver steps) far from the minimum.
 
 import numpy as np
 
+from .._models import MobileModel
+
 # How far beyond what the samples resolve a value must be to be implausible.
 RESOLUTION = 10.0
 
@@ -23,8 +25,9 @@ RESOLUTION = 10.0
 def unresolved(model, dt: float):
     """Boolean arrays shaped like `model.stiffness` and `model.damping`: the
     entries beyond what samples every `dt` seconds resolve (see the module
-    docstring). `None` for a model without connections (`pairs`)."""
-    if not hasattr(model, "pairs"):
+    docstring). `None` for a model other than a `MobileModel` (an immobile
+    model's stiffness matrix has no connection per entry)."""
+    if not isinstance(model, MobileModel):
         return None
     pairs = np.asarray(model.pairs, dtype=int)
     mass = np.asarray(model.bodies.mass, dtype=np.float64)
