@@ -221,6 +221,13 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "vmap_forward": (jax.jit(jax.vmap(loss)), (sets,)),
         "vmap_grad": (jax.jit(jax.vmap(jax.grad(loss))), (sets,)),
     }
+    # the first call of each (tracing, compiling and one run)
+    compile_s = {}
+    for name in ("forward", "grad"):
+        fn, args = calls[name]
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        compile_s[name] = time.perf_counter() - start
     calls.update(product_loops(s, traj, n_evals))
     times = interleaved_best_times(calls, rounds)
     c = times["product"] / times["field"]
@@ -231,6 +238,7 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "forward_ms": 1e3 * times["forward"],
         "grad_ms": 1e3 * times["grad"],
         "grad_over_forward": times["grad"] / times["forward"],
+        "compile_s": compile_s,
         "steps": int(steps),
         "record_over_forward": times["record"] / times["forward"],
         "backward_over_forward": times["backward"] / times["forward"],
