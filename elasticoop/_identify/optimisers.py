@@ -513,8 +513,9 @@ def levenberg_marquardt(
             x
             for x in (
                 trace.reason,
-                f"{int(np.sum(at_bound))} parameters set at the lower end of "
-                f"their range (at_bound)",
+                f"{int(np.sum(at_bound))} "
+                f"{'parameter' if int(np.sum(at_bound)) == 1 else 'parameters'} "
+                f"set at the lower end of their range (at_bound)",
             )
             if x
         )
