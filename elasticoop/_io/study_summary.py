@@ -30,12 +30,15 @@ def output_names(ds: xr.Dataset) -> list[str]:
     return [str(n) for n in ds.data_vars if n not in skip]
 
 
-def elements(x: xr.DataArray) -> list[tuple[dict[str, int], str]]:
-    """Every element of a per-sample variable: `(isel indices, label)`, the label
-    made of the axes' coordinate labels (e.g. `beam-left`), '' for a scalar."""
-    dims = [str(d) for d in x.dims[1:]]
+def elements(
+    x: xr.DataArray, skip: tuple[str, ...] = ()
+) -> list[tuple[dict[str, int], str]]:
+    """Every element of a per-sample variable over its axes after the first that
+    are not in `skip`: `(isel indices, label)`, the label made of the axes'
+    coordinate labels (e.g. `beam-left`), '' for a scalar."""
+    dims = [str(d) for d in x.dims[1:] if d not in skip]
     out = []
-    for index in np.ndindex(*x.shape[1:]):
+    for index in np.ndindex(*[x.sizes[d] for d in dims]):
         labels = []
         for dim, k in zip(dims, index):
             coord = x.coords.get(dim)

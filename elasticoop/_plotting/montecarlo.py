@@ -10,6 +10,7 @@ import math
 import numpy as np
 import xarray as xr
 
+from .._io.study_summary import elements as every_element
 from ..montecarlo import rank_correlations, statistics, valid_samples
 from ._common import new_figure
 
@@ -44,22 +45,6 @@ def _elements(
     if not moving:
         return still[:MAX_PANELS], []
     return moving[:MAX_PANELS], [label for _, label in still]
-
-
-def every_element(
-    x: xr.DataArray, skip: tuple[str, ...] = ()
-) -> list[tuple[dict, str]]:
-    """`(isel indices, label)` of every element over the axes of `x` after the first
-    that are not in `skip`."""
-    dims = [str(d) for d in x.dims[1:] if d not in skip]
-    elements = []
-    for index in np.ndindex(*[x.sizes[d] for d in dims]):
-        labels = []
-        for dim, k in zip(dims, index):
-            coord = x.coords.get(dim)
-            labels.append(str(coord.values[k]) if coord is not None else str(k))
-        elements.append((dict(zip(dims, index)), ", ".join(labels)))
-    return elements
 
 
 def _left_out(still: list[str]) -> str:
