@@ -202,10 +202,10 @@ def test_standard_errors_are_calibrated():
         estimates.append(result.estimate)
         stderrs.append(result.uncertainty.stderr)
         if k == 0:
-            traces = eqx.debug.get_num_traces(optimisers._lm_step)
+            traces = eqx.debug.get_num_traces(optimisers._lm_update)
     # the fits after the first (new data, same problem) reused its compilation
     assert traces >= 1
-    assert eqx.debug.get_num_traces(optimisers._lm_step) == traces
+    assert eqx.debug.get_num_traces(optimisers._lm_update) == traces
     spread = np.std(np.asarray(estimates), axis=0, ddof=1)
     reported = np.mean(np.asarray(stderrs), axis=0)
     ratio = spread / reported

@@ -141,25 +141,24 @@ def test_uncertainty_of_extreme_jacobians_does_not_overflow():
 
 
 def test_step_budget_policy():
-    """8x the steps of the current point, at least 4096, a power of 2, at most
-    the start's 100 000; raised only when an accepted point needs more, and never
-    when the caller fixed it."""
+    """8x the steps of the current point, at least 4096, a power of 2, or the
+    start's 100 000 where that is more than half of it; raised only when an
+    accepted point needs more, and never when the caller fixed it."""
     model, y0 = _two_body()
     e = Experiment(TS_SMALL, np.zeros((51, 2, 6)), y0, np.zeros((2, 6)))
     free = free_parameters(model, STIFFNESS)
     problem = make_problem(model, free, [e], eo.SimulationOptions(max_steps=100_000))
-    assert [step_budget.step_budget(n) for n in (30, 600, 1000, 20_000)] == [
-        4096,
-        8192,
-        8192,
-        100_000,
-    ]
+    assert [
+        step_budget.step_budget(n) for n in (30, 600, 1000, 4096, 7196, 20_000)
+    ] == [4096, 8192, 8192, 32768, 100_000, 100_000]
     budget = step_budget.StepBudget(adaptive=True)
     problem = budget.start(problem, 30)
-    assert problem.options.max_steps == 4096
+    assert problem.step_budget == 4096
     assert budget.follow(problem, 512, 3) is problem
     raised = budget.follow(problem, 513, 4)
-    assert raised.options.max_steps == 8192 and budget.raised_to == 8192
+    assert raised.step_budget == 8192 and budget.raised_to == 8192
     assert "raised from 4096 to 8192 at iteration 4" in budget.notes[-1]
     fixed = step_budget.StepBudget(adaptive=False)
     assert fixed.follow(fixed.start(problem, 30), 10_000, 2) is problem
+    # the cap is the start's own program (no budget), not a budget equal to it
+    assert budget.follow(problem, 7196, 5).step_budget is None

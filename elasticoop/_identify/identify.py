@@ -25,12 +25,12 @@ from .parameters import free_parameters
 from .plausible import RESOLUTION, unresolved
 from .residuals import (
     FitProblem,
+    evaluate,
     initial_states,
     make_problem,
     residuals_and_jacobian,
-    residuals_by_experiment,
     with_held,
-    with_max_steps,
+    with_step_budget,
 )
 from .result import IdentificationResult
 from .step_budget import START_MAX_STEPS, StepBudget
@@ -333,7 +333,7 @@ def identify(
     u: np.ndarray | jax.Array
     for label, p in candidates:
         u = np.concatenate([free.unconstrained(p), no_correction])
-        value, runs, _ = _evaluate(jnp.asarray(u), problem)  # inf if failed
+        value, runs, _ = evaluate(jnp.asarray(u), problem)  # inf if failed
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
         evaluated.append((float(value), label, p, u, ok, steps, runs.status))
     # the equation-error start wins ties (it is listed first; the sort is stable)
@@ -365,9 +365,9 @@ def identify(
         else:
             trace = optax_minimise(problem, u0, optimizer, **kwargs)
         if budget.raised_to is not None:
-            problem = with_max_steps(problem, budget.raised_to)
+            problem = with_step_budget(problem, budget.raised_to)
         if trace.loss_history and trace.jacobian is None:
-            r, J = _residuals_and_jacobian(jnp.asarray(trace.u), problem)
+            r, J = residuals_and_jacobian(jnp.asarray(trace.u), problem)
             trace.residual, trace.jacobian = np.asarray(r), np.asarray(J)
             trace.n_simulations += len(experiments)
         return problem, trace
@@ -505,7 +505,7 @@ def identify(
             k += 1
     status, reason, misfit = trace.status, trace.reason, None
     if status != "failed":
-        _, _, parts = _evaluate(jnp.asarray(trace.u), problem)
+        _, _, parts = evaluate(jnp.asarray(trace.u), problem)
         n_fitted = int(np.sum(~held)) + problem.n_initial
         misfit = misfit_check(parts, problem, n_fitted, misfit_threshold)
         history = trace.loss_history
@@ -740,9 +740,6 @@ def _merge(first: Trace, then: Trace) -> Trace:
     return then
 
 
-_residuals_and_jacobian = eqx.filter_jit(residuals_and_jacobian)
-
-
 def _optimizer(method):
     if isinstance(method, str):
         if method == "levenberg-marquardt":
@@ -797,15 +794,6 @@ def _within_range(free, guess, fallback):
                 outside.append(free.names[k])
         start += n
     return out, outside
-
-
-@eqx.filter_jit
-def _evaluate(u, problem):
-    """The loss at `u`, how its simulations went (`Runs`), and the residuals per
-    batch."""
-    parts, runs = residuals_by_experiment(u, problem)
-    value = 0.5 * sum(jnp.sum(r**2) for r in parts)
-    return value, runs, parts
 
 
 def _raise_start_failure(problem, ok, status=None):

@@ -37,9 +37,9 @@ from .parameters import FreeParameters
 from .residuals import (
     FitProblem,
     Runs,
+    evaluate,
     loss,
     loss_and_runs,
-    residuals,
     residuals_by_experiment,
     residuals_jacobian_and_runs,
     with_held,
@@ -148,7 +148,7 @@ def _f_info(v, problem) -> tuple[_ResidualJac, Runs]:
 
 @eqx.filter_jit
 def _lm_init(search, descent, v, problem) -> _LMState:
-    r = eqx.filter_eval_shape(residuals, v, problem)
+    r = jax.ShapeDtypeStruct((problem.n_residuals,), jnp.float64)
     f_info = optx.FunctionInfo.ResidualJac(
         jnp.zeros(r.shape, r.dtype),
         lx.MatrixLinearOperator(jnp.zeros(r.shape + v.shape, r.dtype)),
@@ -164,20 +164,30 @@ def _lm_init(search, descent, v, problem) -> _LMState:
     )
 
 
-@eqx.filter_jit
-@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def _lm_step(search, descent, state: _LMState, problem):
     """Simulate at the trial point, let the trust region accept or reject it, and
     propose the next trial point. Returns the new state, the loss and its gradient
     at the (new) accepted point, whether the trial was accepted, the loss at the
     trial point ($+\\infty$ where a simulation failed), the result code and how
-    the trial's simulations went (`Runs`)."""
+    the trial's simulations went (`Runs`).
+
+    The simulations are compiled programs of their own (`evaluate` and
+    `jacobian`), shared with the rest of the fit; the trust region's update is a
+    small one (`_lm_update`)."""
     # Trial points with a higher loss than the accepted one are rejected anyway:
     # skip their Jacobians (the first evaluation always computes it).
-    limit = jnp.where(
-        state.first_step, problem.jacobian_loss_limit, state.f_info.as_min()
+    limit = (
+        problem.jacobian_loss_limit if bool(state.first_step) else state.f_info.as_min()
     )
     f_eval_info, runs = _f_info(state.y_eval, with_jacobian_loss_limit(problem, limit))
+    return (*_lm_update(search, descent, state, f_eval_info), runs)
+
+
+@eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
+def _lm_update(search, descent, state: _LMState, f_eval_info):
+    """The trust region's accept or reject of the trial point evaluated as
+    `f_eval_info`, and the next trial point (see `_lm_step`)."""
     step_size, accept, search_result, search_state = search.step(
         state.first_step,
         state.y,
@@ -208,7 +218,7 @@ def _lm_step(search, descent, state: _LMState, problem):
         descent_state=descent_state,
     )
     value, grad = f_info.as_min(), f_info.compute_grad()
-    return state, value, grad, accept, f_eval_info.as_min(), result, runs
+    return state, value, grad, accept, f_eval_info.as_min(), result
 
 
 def _lm_final(state: _LMState):
@@ -232,9 +242,7 @@ def _record_failure(trace: Trace, runs: Runs, problem: FitProblem) -> None:
         if ok:
             continue
         if status == Status.MAX_STEPS_REACHED:
-            why.add(
-                f"reached the step budget of {problem.options.max_steps} solver steps"
-            )
+            why.add(f"reached the step budget of {problem.max_steps} solver steps")
         elif status == Status.SUCCESS:
             why.add("gave non-finite values")
         else:
@@ -310,9 +318,6 @@ def _to_bound(free: FreeParameters, u, mask, u_start) -> np.ndarray:
     inside = np.asarray(free.physical(jnp.zeros(n_p)))
     u[:n_p] = np.where(mask, free.unconstrained(np.where(mask, near, inside)), u[:n_p])
     return u
-
-
-_loss = eqx.filter_jit(loss)
 
 
 def _gauss_newton_gain(r, J) -> float:
@@ -443,7 +448,8 @@ def levenberg_marquardt(
                     )
                     trace.n_simulations += n_experiments
                     trace.n_trials += 1
-                    if float(_loss(jnp.asarray(u_try), trial)) / scale**2 < value:
+                    tried, _, _ = evaluate(jnp.asarray(u_try), trial)
+                    if float(tried) / scale**2 < value:
                         # re-evaluate there (an accepted first step keeps the
                         # trust region); its Jacobian has no columns for them
                         at_bound |= mask

@@ -88,6 +88,26 @@ class FitProblem(eqx.Module):
     # that holds its contact bodies in that rest state (recomputed with it),
     # rather than the experiment's numbers.
     hold_at_rest: bool = eqx.field(static=True, default=False)
+    # The most solver steps of a simulation without sensitivities (None: the
+    # options' `max_steps`); see `step_budget.py`. The simulations with
+    # sensitivities, taken only where the one without succeeded, run under the
+    # options' `max_steps`, so that they compile once whatever the budget.
+    step_budget: int | None = eqx.field(static=True, default=None)
+
+    @property
+    def max_steps(self) -> int:
+        """The most solver steps of a simulation without sensitivities."""
+        if self.step_budget is None:
+            return int(self.options.max_steps)
+        return self.step_budget
+
+    @property
+    def n_residuals(self) -> int:
+        """The length of the residual vector."""
+        return sum(
+            b.y.size * (1 if b.ydot is None or b.ydot_weight is None else 2)
+            for b in self.batches
+        )
 
     @property
     def n_parameters(self) -> int:
@@ -164,11 +184,15 @@ def with_scaling(problem: FitProblem, scale, u_offset, u_scale) -> FitProblem:
     )
 
 
-def with_max_steps(problem: FitProblem, max_steps: int) -> FitProblem:
-    """The same problem with every simulation allowed `max_steps` solver steps (a
-    static setting: the functions of the fit compile anew)."""
-    options = dataclasses.replace(problem.options, max_steps=int(max_steps))
-    return dataclasses.replace(problem, options=options)
+def with_step_budget(problem: FitProblem, max_steps: int | None) -> FitProblem:
+    """The same problem with the simulations without sensitivities allowed
+    `max_steps` solver steps (None: the options' `max_steps`). A static setting:
+    `evaluate` compiles anew for each budget, `jacobian` does not. A budget
+    equal to the options' `max_steps` is no budget."""
+    budget = None if max_steps is None else int(max_steps)
+    if budget == problem.options.max_steps:
+        budget = None  # the same simulations: the same compiled programs
+    return dataclasses.replace(problem, step_budget=budget)
 
 
 def with_jacobian_loss_limit(problem: FitProblem, limit) -> FitProblem:
@@ -287,10 +311,13 @@ def residuals_by_experiment(
     along the last axis with measured $\\dot Y$), and how each simulation went
     (`Runs`)."""
     model = fitted_model(u, problem)
+    options = problem.options
+    if problem.step_budget is not None:
+        options = dataclasses.replace(options, max_steps=problem.step_budget)
     out, ok_all, status, steps = [], [], [], []
     for data, (y0, ydot0) in zip(problem.batches, initial_states(u, problem)):
         traj = _simulate_batch(
-            model, data, y0, ydot0, problem.options, adjoint, problem.hold_at_rest
+            model, data, y0, ydot0, options, adjoint, problem.hold_at_rest
         )
         r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
         if data.ydot is not None and data.ydot_weight is not None:  # set together
@@ -330,57 +357,57 @@ def loss_and_runs(u, problem: FitProblem) -> tuple[jax.Array, Runs]:
     return 0.5 * jnp.sum(jnp.stack([jnp.sum(r**2) for r in parts])), runs
 
 
+@eqx.filter_jit
+def evaluate(u, problem: FitProblem):
+    """The loss $\\tfrac12\\sum r^2$ at `u`, how its simulations went (`Runs`),
+    and the residuals per batch (`residuals_by_experiment`), compiled."""
+    parts, runs = residuals_by_experiment(u, problem)
+    value = 0.5 * sum(jnp.sum(r**2) for r in parts)
+    return value, runs, parts
+
+
+@eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
+def _sensitivities(u, problem: FitProblem) -> jax.Array:
+    def fn(v):
+        return residuals(v, problem, diffrax.ForwardMode())
+
+    return jax.jacfwd(fn)(u)
+
+
+def jacobian(u, problem: FitProblem) -> jax.Array:
+    """$J = \\partial r/\\partial u$ by forward-mode sensitivities (`jax.jacfwd`
+    through `simulate` with `diffrax.ForwardMode()`): one integration carrying one
+    tangent per entry of $u$, under the options' `max_steps` rather than the step
+    budget (the budget is for trial points, whose plain simulations come first),
+    so that one compiled program serves the whole fit."""
+    return _sensitivities(u, with_step_budget(problem, None))
+
+
+def residuals_jacobian_and_runs(u, problem: FitProblem):
+    """$r(u)$ (flat), $J = \\partial r/\\partial u$ (`jacobian`) and how the
+    simulations went (`Runs`).
+
+    The residuals come first, from the simulations without sensitivities
+    (`evaluate`, under the step budget). Where a simulation fails ($+\\infty$
+    residuals, e.g. a trial point beyond the step budget), or the loss exceeds
+    `problem.jacobian_loss_limit` (a trial point that a descent method rejects
+    anyway), the costly integration with sensitivities is skipped and $J$ is
+    returned as zero. Two compiled programs rather than one: the one with
+    sensitivities, the larger, compiles once per fit whatever the budget."""
+    value, runs, parts = evaluate(u, problem)
+    r = np.concatenate([np.asarray(x).reshape(-1) for x in parts])
+    # a relative margin for round-off between this sum and the solver's own
+    limit = float(problem.jacobian_loss_limit) * (1.0 + 1e-6)
+    if np.all(np.isfinite(r)) and float(value) <= limit:
+        J = jacobian(u, problem)
+    else:
+        J = jnp.zeros(r.shape + jnp.shape(u), jnp.float64)
+    return jnp.asarray(r), J, runs
+
+
 def residuals_and_jacobian(u, problem: FitProblem):
     """$r(u)$ and $J = \\partial r/\\partial u$ (`residuals_jacobian_and_runs`
     without the `Runs`)."""
     r, J, _ = residuals_jacobian_and_runs(u, problem)
     return r, J
-
-
-def residuals_jacobian_and_runs(u, problem: FitProblem):
-    """$r(u)$ and $J = \\partial r/\\partial u$ by forward-mode sensitivities
-    (`jax.jacfwd` through `simulate` with `diffrax.ForwardMode()`): one integration
-    carrying one tangent per free parameter.
-
-    The residuals are computed first without sensitivities. Where a simulation
-    fails ($+\\infty$ residuals, e.g. a trial point beyond the step budget), or
-    the loss $\\tfrac12\\sum r^2$ exceeds `problem.jacobian_loss_limit` (a trial
-    point that a descent method rejects anyway), the costly integration with
-    sensitivities is skipped and $J$ is returned as zero. The `Runs` are those of
-    the simulations without sensitivities."""
-
-    def fn(v):
-        r = residuals(v, problem, diffrax.ForwardMode())
-        return r, r
-
-    parts, runs = residuals_by_experiment(u, problem)
-    r = jnp.concatenate([x.reshape(-1) for x in parts])
-    value = 0.5 * jnp.sum(r**2)
-    # a relative margin for round-off between this sum and the solver's own
-    wanted = jnp.all(jnp.isfinite(r)) & (
-        value <= problem.jacobian_loss_limit * (1.0 + 1e-6)
-    )
-    J = jax.lax.cond(
-        wanted,
-        lambda: jax.jacfwd(fn, has_aux=True)(u)[0],
-        lambda: jnp.zeros(r.shape + u.shape, r.dtype),
-    )
-    return r, J, runs
-
-
-@eqx.filter_custom_jvp
-def residuals_fwd(u, *, problem: FitProblem):
-    """`residuals` whose JVP is the forward-mode Jacobian from
-    `residuals_and_jacobian`: `jax.linearize` of it (as Gauss-Newton solvers do)
-    integrates the sensitivities once and keeps $J$, so the linearised map is a
-    cheap, transposable matrix product."""
-    return residuals(u, problem)
-
-
-@residuals_fwd.def_jvp
-def _residuals_fwd_jvp(primals, tangents, *, problem):
-    (u,), (du,) = primals, tangents
-    r, J = residuals_and_jacobian(u, problem)
-    if du is None:
-        return r, jnp.zeros_like(r)
-    return r, J @ du

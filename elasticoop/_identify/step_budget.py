@@ -12,7 +12,7 @@ need more steps than the start did.
 import dataclasses
 import math
 
-from .residuals import FitProblem, with_max_steps
+from .residuals import FitProblem, with_step_budget
 
 # Solver steps allowed for the simulations at the start, and the most any later
 # simulation is allowed.
@@ -27,10 +27,13 @@ def step_budget(steps: int, cap: int = START_MAX_STEPS) -> int:
     """The budget of trial simulations near a point whose simulations took `steps`
     solver steps: `STEP_BUDGET_FACTOR` times `steps`, at least `MIN_BUDGET`,
     rounded up to a power of 2 (fits of similar problems share their compiled
-    functions, and a raise at least doubles it), at most `cap` (the simulation
-    settings' `max_steps`)."""
+    functions, and a raise at least doubles it), and `cap` (the simulation
+    settings' `max_steps`) where that is more than half of `cap`: each budget is
+    a compiled program of its own, and the start's simulations already ran under
+    `cap`."""
     wanted = max(MIN_BUDGET, math.ceil(STEP_BUDGET_FACTOR * int(steps)))
-    return min(cap, 1 << (wanted - 1).bit_length())
+    budget = 1 << (wanted - 1).bit_length()
+    return cap if 2 * budget > cap else budget
 
 
 @dataclasses.dataclass
@@ -52,19 +55,19 @@ class StepBudget:
             return problem
         budget = step_budget(steps, self.cap)
         if budget >= self.cap:
-            return with_max_steps(problem, self.cap)
+            return with_step_budget(problem, self.cap)
         self.notes.append(
             f"simulations limited to {budget} solver steps ({STEP_BUDGET_FACTOR}x "
             f"those at the start, at least {MIN_BUDGET}, raised as the fit reaches "
             f"points that need more, up to {self.cap}); a trial point "
             f"needing more is rejected"
         )
-        return with_max_steps(problem, budget)
+        return with_step_budget(problem, budget)
 
     def follow(self, problem: FitProblem, steps: int, iteration: int) -> FitProblem:
         """`problem` with the budget that an accepted point needing `steps` solver
         steps calls for (the same problem when its budget suffices)."""
-        current = problem.options.max_steps
+        current = problem.max_steps
         budget = step_budget(steps, self.cap)
         if not self.adaptive or budget <= current:
             return problem
@@ -73,4 +76,4 @@ class StepBudget:
             f"step budget raised from {current} to {budget} at iteration "
             f"{iteration}, where the simulations took {steps} solver steps"
         )
-        return with_max_steps(problem, budget)
+        return with_step_budget(problem, budget)
