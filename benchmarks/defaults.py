@@ -158,7 +158,7 @@ def product_loops(s, traj, n_evals: int) -> dict:
     damping (`product`), in compiled loops on single states: each at the run's
     middle output, nudged by the previous result (so that nothing is computed once
     outside the loop)."""
-    from gradients import field_of_parameters, parameters
+    from gradients import field_of_parameters, parameters, product_loop
 
     from elasticoop import _simulate
 
@@ -179,15 +179,9 @@ def product_loops(s, traj, n_evals: int) -> dict:
         x_bar, acc = carry
         return field(t0 + 1e-12 * acc, x0 + 1e-12 * x_bar, params), acc
 
-    def product(params, carry):
-        x_bar, acc = carry
-        t, x = t0 + 1e-12 * acc, x0 + 1e-12 * x_bar
-        _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
-        x_bar, p_bar = pullback(x_bar0)
-        return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
-
     args = (parameters(s.model),)
-    return {"field": (loop(evaluate), args), "product": (loop(product), args)}
+    product = product_loop(field, t0, x0, x_bar0, n_evals)
+    return {"field": (loop(evaluate), args), "product": (product, args)}
 
 
 def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_000):

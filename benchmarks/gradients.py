@@ -132,6 +132,26 @@ def field_of_parameters(scenario):
     return field
 
 
+def product_loop(field, t0, x0, x_bar0, n_evals: int):
+    """A compiled loop of `n_evals` vector-Jacobian products of `field(t, x,
+    params)` in the state and the parameters (two arrays), with the cotangent
+    `x_bar0`, at `(t0, x0)` nudged by the previous result (so that nothing is
+    computed once outside the loop): a function of the parameters."""
+
+    @jax.jit
+    def run(params):
+        def body(k, carry):
+            x_bar, acc = carry
+            t, x = t0 + 1e-12 * acc, x0 + 1e-12 * x_bar
+            _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
+            x_bar, p_bar = pullback(x_bar0)
+            return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
+
+        return jax.lax.fori_loop(0, n_evals, body, (jnp.zeros_like(x0), jnp.zeros(())))
+
+    return run
+
+
 def per_evaluation(scenario, traj, n_evals: int) -> dict:
     """Compiled loops of `n_evals` evaluations of `simulate`'s vector field, alone
     (`alone`) and with its vector-Jacobian product with respect to the state and
@@ -178,19 +198,7 @@ def per_evaluation(scenario, traj, n_evals: int) -> dict:
 
     t_fixed, x_fixed, x_bar_fixed = times[n // 2], states[n // 2], states[n // 2 + 1]
 
-    @jax.jit
-    def with_vjp_small_arrays(params):
-        def body(k, carry):
-            x_bar, acc = carry
-            t, x = t_fixed + 1e-12 * acc, x_fixed + 1e-12 * x_bar
-            _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
-            x_bar, p_bar = pullback(x_bar_fixed)
-            return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
-
-        return jax.lax.fori_loop(
-            0, n_evals, body, (jnp.zeros_like(x_fixed), jnp.zeros(()))
-        )
-
+    with_vjp_small_arrays = product_loop(field, t_fixed, x_fixed, x_bar_fixed, n_evals)
     args = (parameters(scenario.model),)
     return {
         "alone": (alone, args),

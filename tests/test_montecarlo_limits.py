@@ -116,6 +116,7 @@ def test_a_full_disk_keeps_the_stored_chunks(study, tmp_path, monkeypatch, capsy
     )
 
 
+@pytest.mark.slow  # compiles the study, as the two other slow tests here do
 def test_a_read_only_store_is_a_clear_error(study, tmp_path, monkeypatch):
     """Before: `ValueError: cannot create the lock file` (the command line called
     it a bug in elasticoop); as root, permissions cannot be taken away, so the

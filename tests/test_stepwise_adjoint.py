@@ -1,6 +1,8 @@
 """`StepwiseAdjoint` against diffrax's adjoint (an independent implementation of
 the discrete adjoint of the same solution) and central differences."""
 
+import functools
+
 import diffrax
 import equinox as eqx
 import jax
@@ -70,6 +72,13 @@ def gradients(**kwargs):
     return ours(PARAMS), theirs(PARAMS)
 
 
+@functools.cache
+def gradient_at_params(adjoint):
+    """The gradient at `PARAMS` with the default settings, computed once per
+    adjoint for the tests of this file (each compilation takes seconds)."""
+    return jax.jit(jax.grad(lambda p: loss(p, adjoint)))(PARAMS)
+
+
 def assert_close(ours, theirs, rtol=RTOL):
     for name, a, b in zip(
         ("stiffness", "damping", "mass", "y0", "forces"), ours, theirs, strict=True
@@ -82,7 +91,8 @@ def assert_close(ours, theirs, rtol=RTOL):
 
 @pytest.mark.slow
 def test_equals_diffrax_adjoint_and_central_differences():
-    ours, theirs = gradients()
+    ours = gradient_at_params(eo.StepwiseAdjoint())
+    theirs = gradient_at_params(CHECKPOINTS)
     assert_close(ours, theirs)
     # and one entry against central differences (the loss's rounding limits it)
     h = 1e-4 * float(MODEL.stiffness[0, 2])
@@ -222,8 +232,7 @@ def test_steps_past_the_kept_ones_are_replayed():
     ours = jax.jit(
         jax.grad(lambda p: loss(p, eo.StepwiseAdjoint(kept_steps=64), max_steps=1000))
     )(PARAMS)
-    theirs = jax.jit(jax.grad(lambda p: loss(p, CHECKPOINTS)))(PARAMS)
-    assert_close(ours, theirs)
+    assert_close(ours, gradient_at_params(CHECKPOINTS))
 
 
 @pytest.mark.slow
@@ -256,7 +265,7 @@ def test_the_default_adjoint_is_stepwise_with_diffrax_for_the_rest():
     (the same gradients, bitwise), and diffrax's adjoint for a gradient with
     respect to the output times, which the stepwise adjoint holds fixed."""
     default = jax.jit(jax.grad(lambda p: loss(p, None)))(PARAMS)
-    stepwise = jax.jit(jax.grad(lambda p: loss(p, eo.StepwiseAdjoint())))(PARAMS)
+    stepwise = gradient_at_params(eo.StepwiseAdjoint())
     for a, b in zip(jax.tree.leaves(default), jax.tree.leaves(stepwise), strict=True):
         np.testing.assert_array_equal(a, b)
 
