@@ -14,6 +14,7 @@ from elasticoop._identify import (
     Experiment,
     gauss_newton_uncertainty,
     identify,
+    residuals,
     step_budget,
 )
 from elasticoop._identify.parameters import free_parameters
@@ -70,7 +71,7 @@ def test_all_trials_failing_is_not_convergence(small_budget):
     assert len(result.loss_history) == 1
 
 
-@pytest.mark.slow  # two compilations: the budget is raised once
+@pytest.mark.slow  # the plain simulations compile once per budget (3)
 def test_step_budget_follows_the_fit(small_budget):
     """The start (0.4x the stiffness of the data's model) takes 82 steps, so its
     budget is 128; the truth takes 135. The budget must grow as the fit stiffens,
@@ -79,10 +80,13 @@ def test_step_budget_follows_the_fit(small_budget):
     model, _ = _two_body()
     truth = _with_stiffness(model, 1.2 * model.stiffness)
     start = _with_stiffness(model, 0.4 * model.stiffness)
+    traces = eqx.debug.get_num_traces(residuals._sensitivities)
     result = identify(
         start, _experiment(truth), STIFFNESS, init="model", max_steps=40, progress=False
     )
     assert result.converged, result.reason
+    # the simulations with sensitivities compile once whatever the budget
+    assert eqx.debug.get_num_traces(residuals._sensitivities) <= traces + 1
     np.testing.assert_allclose(
         result.estimate, np.ravel(truth.stiffness), rtol=RECOVERY_RTOL
     )

@@ -7,7 +7,9 @@
   `optimistix.DampedNewtonDescent`, solved by QR), with the Jacobian from
   forward-mode sensitivities (one integration carrying one tangent per parameter,
   `diffrax.ForwardMode`). Each step's accepted loss, gradient, acceptance and
-  trial loss are explicit outputs of one compiled step function. A trial step
+  trial loss are explicit outputs of the step; its simulations (`evaluate`,
+  `jacobian`) and the trust region's update (`_lm_update`) are compiled
+  separately, each once per fit (`evaluate` once per step budget). A trial step
   whose loss is not lower (an infinite loss for a failed simulation) is rejected
   by the trust region, which shrinks the step; such a trial costs one plain
   simulation, as its Jacobian is not computed.
@@ -147,8 +149,8 @@ def _f_info(v, problem) -> tuple[_ResidualJac, Runs]:
 
 
 @eqx.filter_jit
-def _lm_init(search, descent, v, problem) -> _LMState:
-    r = jax.ShapeDtypeStruct((problem.n_residuals,), jnp.float64)
+def _lm_init(search, descent, v, n_residuals: int) -> _LMState:
+    r = jax.ShapeDtypeStruct((n_residuals,), jnp.float64)
     f_info = optx.FunctionInfo.ResidualJac(
         jnp.zeros(r.shape, r.dtype),
         lx.MatrixLinearOperator(jnp.zeros(r.shape + v.shape, r.dtype)),
@@ -375,7 +377,7 @@ def levenberg_marquardt(
     # scales), and multiply the residuals by c so that lambda = 1 is Marquardt's
     # lambda_0 = TAU max diag(J^T J). One extra evaluation at u0; the scalings are
     # traced values, so nothing recompiles.
-    state = _lm_init(search, descent, u, problem)
+    state = _lm_init(search, descent, u, problem.n_residuals)
     state, value, *_ = _lm_step(search, descent, state, problem)
     trace.n_simulations += n_experiments
     if not np.isfinite(float(value)):
@@ -388,7 +390,7 @@ def levenberg_marquardt(
     scale = 1.0 / np.sqrt(TAU)
     problem = with_scaling(problem, scale, u, u_scale)
     u0_arr = u
-    state = _lm_init(search, descent, jnp.zeros_like(u), problem)
+    state = _lm_init(search, descent, jnp.zeros_like(u), problem.n_residuals)
     show = _Progress(progress, "Levenberg-Marquardt, forward-mode Jacobian")
     # Rejected trials in a row whose simulations succeeded: failed ones (a trial
     # point far off) say nothing about the minimum, only that the step was long.

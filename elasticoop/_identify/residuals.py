@@ -74,7 +74,7 @@ class FitProblem(eqx.Module):
     u_offset: jax.Array  # u = u_offset + u_scale * v, v the solver's variables
     u_scale: jax.Array
     # The Jacobian is computed only where the loss is at most this (+inf: always);
-    # see `residuals_and_jacobian`.
+    # see `residuals_jacobian_and_runs`.
     jacobian_loss_limit: jax.Array
     # Which parts of the initial states are estimated: (positions, rates).
     fit_initial: tuple[bool, bool] = eqx.field(static=True)
@@ -358,6 +358,7 @@ def loss_and_runs(u, problem: FitProblem) -> tuple[jax.Array, Runs]:
 
 
 @eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (get_num_traces)
 def evaluate(u, problem: FitProblem):
     """The loss $\\tfrac12\\sum r^2$ at `u`, how its simulations went (`Runs`),
     and the residuals per batch (`residuals_by_experiment`), compiled."""
@@ -396,14 +397,15 @@ def residuals_jacobian_and_runs(u, problem: FitProblem):
     returned as zero. Two compiled programs rather than one: the one with
     sensitivities, the larger, compiles once per fit whatever the budget."""
     value, runs, parts = evaluate(u, problem)
-    r = np.concatenate([np.asarray(x).reshape(-1) for x in parts])
-    # a relative margin for round-off between this sum and the solver's own
+    r = jnp.concatenate([x.reshape(-1) for x in parts])
+    # Every residual is finite where the loss is (failed runs give +inf). A
+    # relative margin for round-off between this sum and the solver's own.
     limit = float(problem.jacobian_loss_limit) * (1.0 + 1e-6)
-    if np.all(np.isfinite(r)) and float(value) <= limit:
+    if np.isfinite(float(value)) and float(value) <= limit:
         J = jacobian(u, problem)
     else:
         J = jnp.zeros(r.shape + jnp.shape(u), jnp.float64)
-    return jnp.asarray(r), J, runs
+    return r, J, runs
 
 
 def residuals_and_jacobian(u, problem: FitProblem):
