@@ -486,7 +486,7 @@ def identify(
         )
     unc, estimate, initial_stderr = analysis
     estimate[held] = (start if u_start is not None else initial)[held]
-    dp_du = _dp_du(free, trace.u)
+    dp_du = free.derivative(trace.u)
     flat = [n for n, d, h in zip(free.names, dp_du, held) if not (_live(d) or h)]
     if flat:
         notes.append(
@@ -638,12 +638,6 @@ def _live(d) -> bool:
     return bool(np.isfinite(d) and d != 0)
 
 
-def _dp_du(free, u) -> np.ndarray:
-    """$dp/du$ of each free parameter at the parameter part of `u`."""
-    u = jnp.asarray(u)[: free.size]
-    return np.asarray(jax.jacfwd(free.physical)(u)).diagonal()
-
-
 def _initial_values(problem: FitProblem) -> np.ndarray:
     """The experiments' own initial-state entries that the fit estimates (the
     start of the estimates), in the order of $u$."""
@@ -674,7 +668,7 @@ def _analyse(
     free = problem.free
     n_p = free.size
     u = np.asarray(trace.u)
-    dp_du = _dp_du(free, u)
+    dp_du = free.derivative(u)
     estimate = np.array(free.physical(jnp.asarray(u[:n_p])))
     J = np.asarray(trace.jacobian)
     with np.errstate(divide="ignore", invalid="ignore"):

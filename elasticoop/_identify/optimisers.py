@@ -296,7 +296,7 @@ def _at_bound(free: FreeParameters, held, u, r, J_u) -> np.ndarray:
     lower = free.lower_bounds()
     uu = jnp.asarray(np.asarray(u)[:n_p])
     p = np.asarray(free.physical(uu))
-    dp_du = np.asarray(jax.jacfwd(free.physical)(uu)).diagonal()
+    dp_du = free.derivative(uu)
     J = np.asarray(J_u)[:, :n_p]
     g = J.T @ np.asarray(r)
     c = np.sum(J**2, axis=0)
@@ -430,8 +430,9 @@ def levenberg_marquardt(
             slowed = last is not None and last - value < value / max(
                 n_residuals - n_live, 1
             )
-            if slowed:
+            if slowed or tested:
                 r, Jv = _lm_final(state)
+            if slowed:
                 mask = _at_bound(
                     problem.free,
                     problem.held,
@@ -471,7 +472,6 @@ def levenberg_marquardt(
                         )
                         continue
             if tested:
-                r, Jv = _lm_final(state)
                 s2 = 2.0 * value / max(n_residuals - n_live, 1)
                 gain = _gauss_newton_gain(r / scale, Jv / scale)
                 if gain <= 0.5 * STAT_STEP**2 * s2:

@@ -169,6 +169,12 @@ class FreeParameters(eqx.Module):
         """$p = g(u)$ as one flat vector."""
         return jnp.concatenate([v.reshape(-1) for v in self.values(u)])
 
+    def derivative(self, u) -> np.ndarray:
+        """$dp_k/du_k$ of each free parameter at the parameter part of `u` (the
+        first `size` entries; each transform acts entry by entry)."""
+        u = jnp.asarray(u)[: self.size]
+        return np.asarray(jax.jacfwd(self.physical)(u)).diagonal()
+
     def apply(self, model, u: jax.Array):
         """`model` with its free leaves set to $g(u)$."""
         leaves, treedef = jax.tree.flatten(model)
