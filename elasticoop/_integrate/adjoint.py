@@ -25,11 +25,20 @@ solver's dense output: an output at $\\tau$ in step $n$ is linear in
 $(x_n, x_{n+1}, K_1, \\dots, K_s)$, and its cotangent adds to $\\bar x_n^{out}$,
 $\\bar x_{n+1}$ and $\\bar K^{out}$ with the interpolation's coefficients at $\\tau$.
 
-Each step's products are taken inside a `jax.lax.cond` whose operands are small
-arrays (a state or less each). XLA's CPU runtime runs the operations of such a
-branch one after the other; the loop's body, which touches large arrays, it runs
-as a graph, handing work to its thread pool and back, which makes a product
-cost more applied in the body itself (`benchmarks/gradients.py`). The stage inputs
+Each stage's product is taken in a `jax.lax.cond` of its own, whose operands are
+the stage's own arrays: its time, input and cotangent, and the parameters and
+their cotangents so far. XLA's CPU runtime runs a nested program (a loop's body,
+a branch) one operation after the other in the calling thread where all its
+buffers are small (64 floats or less) or where it holds at most 8 operations; any
+other it runs as a graph, handing its operations to its thread pool and back,
+which on arrays of a state costs more than the operations themselves. So the
+product's branch is of the first kind (up to five bodies, whose state has 62
+floats), and so is the loop over the stages: its body holds 8 operations, with
+the sum over the later stages written out and the stages' cotangents updated in
+one operation (`benchmarks/defaults.py` times the gradient). Under `vmap`, where a
+branch on a batched condition becomes both branches and a choice, a product that
+every step needs is taken as it is, and the sum is a dot product, which is
+quicker there. The stage inputs
 are replayed `_BLOCK` steps at a time, in the Runge-Kutta step of the batch loop
 (`rk_step.explicit_step`, the block of steps as its batch: one stage-time rule and
 one dense-output rule, `stage_time` and `dense_weights`, for the forward runs and
@@ -249,36 +258,49 @@ def stepwise_solve(
             h = t1 - t0
             x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
             b_i, a_i = jnp.asarray(b_row, h.dtype), jnp.asarray(a_columns, h.dtype)
-            times = jnp.stack([stage_time(t0, t1, c_i) for c_i in c])
+            times = stage_time(t0, t1, jnp.asarray(c, h.dtype))
 
-            def product(i, k_bar):
-                _, pullback = jax.vjp(
-                    lambda y, d: f(times[i], y, d), inputs[i], diff_args
-                )
-                return pullback(h * k_bar)
+            def product(t, x, k_bar, d, p_bar):
+                _, pullback = jax.vjp(lambda y, d: f(t, y, d), x, d)
+                stage_bar, d_bar = pullback(h * k_bar)
+                return stage_bar, jax.tree.map(jnp.add, p_bar, d_bar)
+
+            def no_product(t, x, k_bar, d, p_bar):
+                return jnp.zeros_like(k_bar), p_bar
 
             def stage_back(i, stage_bars, p_bar):
                 """Stage `i`'s $\\bar X_i$ into `stage_bars` and its $\\bar p_i$
                 added to `p_bar`."""
-                k_bar = b_i[i] * x_bar + k_out[i] + jnp.tensordot(a_i[i], stage_bars, 1)
+                # (one run: the sum written out, a dot product under `vmap`; the
+                # module's docstring says why)
+                if nested:
+                    later = jnp.tensordot(a_i[i], stage_bars, 1)
+                else:
+                    later = jnp.sum(a_i[i][:, None] * stage_bars, axis=0)
+                k_bar = b_i[i] * x_bar + k_out[i] + later
                 if isinstance(i, int):
                     needed = None if used[i] else has_output
                 elif all(used[:looped]):
                     needed = None
                 else:
                     needed = jnp.asarray(used)[i] | has_output
-                if needed is not None:
-                    stage_bar, d_bar = jax.lax.cond(
-                        needed,
-                        product,
-                        lambda i, k_bar: (jnp.zeros_like(k_bar), zeros),
-                        i,
-                        k_bar,
-                    )
+                # The product in a branch of its own, on the stage's own small
+                # arrays (see the module's docstring). A step of length zero has
+                # no product: its increments are $h f = 0$. (Under `vmap`, where a
+                # branch on a batched condition becomes both branches and a
+                # choice, a product that is always needed is taken as it is.)
+                operands = (times[i], inputs[i], k_bar, diff_args, p_bar)
+                if nested and needed is None:
+                    stage_bar, p_bar = product(*operands)
                 else:
-                    stage_bar, d_bar = product(i, k_bar)
-                stage_bars = stage_bars.at[i].set(stage_bar)
-                return stage_bars, jax.tree.map(jnp.add, p_bar, d_bar)
+                    taken = h != 0 if needed is None else needed & (h != 0)
+                    stage_bar, p_bar = jax.lax.cond(
+                        taken, product, no_product, *operands
+                    )
+                stage_bars = jax.lax.dynamic_update_index_in_dim(
+                    stage_bars, stage_bar, i, 0
+                )
+                return stage_bars, p_bar
 
             stage_bars = jnp.zeros_like(inputs)
             for i in reversed(range(looped, stages)):
