@@ -24,13 +24,14 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   against one forward run (the loss, jitted); and its two halves timed alone: the
   forward run that records the accepted steps (`record`) and the backward pass
   (`backward`), with the run's accepted steps.
-  What bounds it: `product_over_field` ($c$), the vector-Jacobian product of
-  `simulate`'s vector field in the state and the 24 parameters against the field
+  What bounds it: `product_us` and `field_us`, the vector-Jacobian product of
+  `simulate`'s vector field in the state and the 24 parameters and the field
   alone, each `n_evals` times in a compiled loop whose body touches single states
-  only (as the adjoint applies it), at a state of the run; and `bound`, the
-  gradient's cost in forward runs if the backward pass cost only its products and
-  their replayed evaluations, $1 + \\tfrac{s'}{s}(1 + c)$, with $s'$ the products and
-  $s$ the evaluations per step (14 and 13 for Dopri8).
+  only (as the adjoint applies it), at a state of the run
+  (`product_over_field`, their ratio); and `backward_us_per_evaluation`, the
+  backward pass's time over the forward run's evaluations of the field (steps
+  times the evaluations per step, 13 for Dopri8): a product, its replayed
+  evaluation and their share of the loops around them.
 - `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
   `vmap`-ped forward run (both at the defaults: the forward run in the batch loop).
 
@@ -239,7 +240,9 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "field_us": 1e6 * times["field"] / n_evals,
         "product_us": 1e6 * times["product"] / n_evals,
         "product_over_field": c,
-        "bound": 1 + stages / (stages - 1) * (1 + c),
+        "backward_us_per_evaluation": 1e6
+        * times["backward"]
+        / (int(steps) * (stages - 1)),
         "vmap_forward_ms": 1e3 * times["vmap_forward"],
         "vmap_grad_ms": 1e3 * times["vmap_grad"],
         "vmap_grad_over_vmap_forward": times["vmap_grad"] / times["vmap_forward"],
