@@ -30,8 +30,9 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   only (as the adjoint applies it), at a state of the run
   (`product_over_field`, their ratio); and `backward_us_per_evaluation`, the
   backward pass's time over the forward run's evaluations of the field (steps
-  times the evaluations per step, 13 for Dopri8): a product, its replayed
-  evaluation and their share of the loops around them.
+  times the evaluations per step: the stages less one, the last stage of a step
+  being the first of the next, 13 for Dopri8): a product, its replayed evaluation
+  and their share of the loops around them.
 - `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
   `vmap`-ped forward run (both at the defaults: the forward run in the batch loop).
 

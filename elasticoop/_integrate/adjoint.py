@@ -26,19 +26,22 @@ $(x_n, x_{n+1}, K_1, \\dots, K_s)$, and its cotangent adds to $\\bar x_n^{out}$,
 $\\bar x_{n+1}$ and $\\bar K^{out}$ with the interpolation's coefficients at $\\tau$.
 
 Each stage's product is taken in a `jax.lax.cond` of its own, whose operands are
-the stage's own arrays: its time, input and cotangent, and the parameters and
-their cotangents so far. XLA's CPU runtime runs a nested program (a loop's body,
-a branch) one operation after the other in the calling thread where all its
-buffers are small (64 floats or less) or where it holds at most 8 operations; any
-other it runs as a graph, handing its operations to its thread pool and back,
-which on arrays of a state costs more than the operations themselves. So the
-product's branch is of the first kind (up to five bodies, whose state has 62
-floats), and so is the loop over the stages: its body holds 8 operations, with
-the sum over the later stages written out and the stages' cotangents updated in
-one operation (`benchmarks/defaults.py` times the gradient). Under `vmap`, where a
-branch on a batched condition becomes both branches and a choice, a product that
-every step needs is taken as it is, and the sum is a dot product, which is
-quicker there. The stage inputs
+single states or less: the stage's time, input and cotangent, the parameters and
+their cotangents so far, and what the vector field reads of the model and the
+forces. XLA's CPU runtime (in jax 0.10) runs a nested program (a loop's body, a
+branch) one operation after the other in the calling thread where every buffer it
+touches holds 512 bytes (64 float64) or less, where it holds at most 8 operations
+after fusion, or where its operations form a chain; any other it runs as a graph,
+handing its operations to its thread pool and back, which on arrays of a state
+costs more than the operations themselves. So the product's branch runs in the
+calling thread (up to five bodies, whose state has 62 floats, and forces whose
+arrays are as small), and so does the loop over the stages: its body holds 8
+operations, with the sum over the later stages an elementwise product and a sum
+instead of a dot product and the stages' cotangents updated in one operation
+(`benchmarks/defaults.py` times the gradient). Under `vmap`, where a branch on a
+batched condition becomes both branches and a choice, a product that every step
+needs is taken as it is, and the sum is a dot product, which is quicker there.
+The stage inputs
 are replayed `_BLOCK` steps at a time, in the Runge-Kutta step of the batch loop
 (`rk_step.explicit_step`, the block of steps as its batch: one stage-time rule and
 one dense-output rule, `stage_time` and `dense_weights`, for the forward runs and
@@ -66,7 +69,7 @@ import numpy as np
 
 from .._compat import dense_stages
 from .recorder import AcceptedSteps, StepLayout
-from .rk_step import dense_weights, explicit_step, stage_buffer, stage_time
+from .rk_step import by_row, dense_weights, explicit_step, stage_buffer, stage_time
 
 # Steps whose stage inputs the backward pass replays at once (a batch).
 _BLOCK = 64
@@ -252,9 +255,10 @@ def stepwise_solve(
             """The cotangents before a step from those after it, given the step's
             times, the share of its outputs' cotangents and its stage inputs.
             The stages go back in a loop (one vector-Jacobian product in the
-            program, not one per stage: the program compiles in a fraction of the
-            time and runs in the same), after the trailing stages that only the
-            dense output uses, taken only when the step has an output."""
+            program for all of them, not one per stage: the program compiles in a
+            fraction of the time and runs in the same), after the trailing stages
+            that only the dense output uses (a product each), taken only when the
+            step has an output."""
             h = t1 - t0
             x0_bar, x_bar, k_out = share[0], x_bar + share[1], share[2:]
             b_i, a_i = jnp.asarray(b_row, h.dtype), jnp.asarray(a_columns, h.dtype)
@@ -271,12 +275,12 @@ def stepwise_solve(
             def stage_back(i, stage_bars, p_bar):
                 """Stage `i`'s $\\bar X_i$ into `stage_bars` and its $\\bar p_i$
                 added to `p_bar`."""
-                # (one run: the sum written out, a dot product under `vmap`; the
-                # module's docstring says why)
+                # (one run: an elementwise product and a sum, a dot product under
+                # `vmap`; the module's docstring says why)
                 if nested:
                     later = jnp.tensordot(a_i[i], stage_bars, 1)
                 else:
-                    later = jnp.sum(a_i[i][:, None] * stage_bars, axis=0)
+                    later = jnp.sum(by_row(a_i[i], stage_bars) * stage_bars, axis=0)
                 k_bar = b_i[i] * x_bar + k_out[i] + later
                 if isinstance(i, int):
                     needed = None if used[i] else has_output
@@ -285,10 +289,11 @@ def stepwise_solve(
                 else:
                     needed = jnp.asarray(used)[i] | has_output
                 # The product in a branch of its own, on the stage's own small
-                # arrays (see the module's docstring). A step of length zero has
-                # no product: its increments are $h f = 0$. (Under `vmap`, where a
-                # branch on a batched condition becomes both branches and a
-                # choice, a product that is always needed is taken as it is.)
+                # arrays (see the module's docstring); every accepted step has
+                # h > 0, and one of length zero would have no product (its
+                # increments are $h f = 0$). (Under `vmap`, where a branch on a
+                # batched condition becomes both branches and a choice, a product
+                # that is always needed is taken as it is.)
                 operands = (times[i], inputs[i], k_bar, diff_args, p_bar)
                 if nested and needed is None:
                     stage_bar, p_bar = product(*operands)
@@ -348,8 +353,8 @@ def stepwise_solve(
             hi = jnp.sum(where <= k, dtype=jnp.int32)
             has_output = hi > lo
             share = jnp.where(has_output, sums[jnp.maximum(hi - 1, 0)], 0.0)
-            # the step's own work in a branch on small arrays only (the module's
-            # docstring says why). (k < 0 in the last block of the loop over
+            # the step's own work in a branch, taken for k >= 0. (k < 0 in the
+            # last block of the loop over
             # blocks, where the branch is not taken, or under `vmap` its results
             # discarded: `t_start[k]` wraps around. Clipped, `max(k, 0)`, it made
             # the backward pass slower.)

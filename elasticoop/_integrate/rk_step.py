@@ -66,8 +66,8 @@ class BatchStep(NamedTuple):
 def stage_time(t0: Array, t1: Array, c_i: float | Array) -> Array:
     """The time $t_0 + c_i h$ of a stage of the step from `t0` to `t1`
     ($h = t_1 - t_0$), exactly `t1` where $c_i = 1$ and `t0` where $c_i = 0$
-    (as diffrax's stages). `c_i` a number, or a traced scalar (the stage of a
-    loop), or an array of them (the times of those stages)."""
+    (for a finite $h$; as diffrax's stages). `c_i` a number, or a traced scalar
+    (the stage of a loop), or an array of them (the times of those stages)."""
     if isinstance(c_i, int | float | np.floating):
         if c_i == 0:
             return t0
