@@ -41,11 +41,11 @@ instead of a dot product and the stages' cotangents updated in one operation
 (`benchmarks/defaults.py` times the gradient). Under `vmap`, where a branch on a
 batched condition becomes both branches and a choice, a product that every step
 needs is taken as it is, and the sum is a dot product, which is quicker there.
-The stage inputs
-are replayed `_BLOCK` steps at a time, in the Runge-Kutta step of the batch loop
-(`rk_step.explicit_step`, the block of steps as its batch: one stage-time rule and
-one dense-output rule, `stage_time` and `dense_weights`, for the forward runs and
-the replay), and the outputs' shares are summed
+
+The stage inputs are replayed `_BLOCK` steps at a time, in the Runge-Kutta step of
+the batch loop (`rk_step.explicit_step`, the block of steps as its batch: one
+stage-time rule and one dense-output rule, `stage_time` and `dense_weights`, for
+the forward runs and the replay), and the outputs' shares are summed
 per step beforehand (a scan over the outputs that starts again at each step's
 first), both quicker than replaying step by step or looping over each step's
 outputs.
@@ -354,10 +354,9 @@ def stepwise_solve(
             has_output = hi > lo
             share = jnp.where(has_output, sums[jnp.maximum(hi - 1, 0)], 0.0)
             # the step's own work in a branch, taken for k >= 0. (k < 0 in the
-            # last block of the loop over
-            # blocks, where the branch is not taken, or under `vmap` its results
-            # discarded: `t_start[k]` wraps around. Clipped, `max(k, 0)`, it made
-            # the backward pass slower.)
+            # last block of the loop over blocks, where the branch is not taken,
+            # or under `vmap` its results discarded: `t_start[k]` wraps around.
+            # Clipped, `max(k, 0)`, it made the backward pass slower.)
             return jax.lax.cond(
                 k >= 0,
                 step_back,
