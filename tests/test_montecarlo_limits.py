@@ -158,7 +158,7 @@ def test_a_study_file_time_grid_is_capped_like_a_scenario(tmp_path):
     assert "over the limit of 1 GiB" in str(info.value)
 
 
-def test_too_many_samples_are_refused_before_any_chunk(study, tmp_path):
+def test_too_many_samples_are_refused_before_any_chunk(tmp_path):
     """Before: `n_samples = 10**15` ended in a `MemoryError` traceback, and
     `10**12` started a run that needed about 1.3 PB."""
     huge = _study(n_samples=10**15)
@@ -172,17 +172,8 @@ def test_too_many_samples_are_refused_before_any_chunk(study, tmp_path):
         mc.StudyTooLargeError, match=r"needs about [\d.]+ TiB of memory for its results"
     ):
         mc.run_study(_study(n_samples=10**12), None, progress=False)
-    small = study
-    needs = mc.check_needs(small, CHUNK, store)
-    with pytest.raises(mc.StudyTooLargeError, match="over disk_budget = 100 bytes"):
-        _run(small, store, disk_budget=100)
-    with pytest.raises(mc.StudyTooLargeError, match="over host_budget = 100 bytes"):
-        _run(small, None, host_budget=100)
-    assert not store.exists()
-    ds = _run(small, store, disk_budget=needs["disk"], host_budget=needs["host"])
-    used = sum(p.stat().st_size for p in store.iterdir())
-    assert used <= needs["disk"]  # the estimate is an upper bound
-    assert ds.attrs["complete"] == 1
+    # (the budgets of a study that fits: tests/test_montecarlo_store.py, where the
+    # study is compiled already)
 
 
 @pytest.mark.slow  # builds the shipped study

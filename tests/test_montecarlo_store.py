@@ -102,6 +102,29 @@ def full_store(study, reference, tmp_path_factory):
     return store
 
 
+def test_budgets_refuse_below_the_estimate_and_run_within_it(study, tmp_path):
+    """`disk_budget` and `host_budget` refuse a run whose estimated needs exceed
+    them, before anything is made; a run within the estimate completes and uses
+    no more disk than estimated (the estimate is an upper bound)."""
+    store = tmp_path / "study"
+    needs = mc.check_needs(study, CHUNK, store)
+    with pytest.raises(mc.StudyTooLargeError, match="over disk_budget = 100 bytes"):
+        _run(study, store, chunk_size=CHUNK, disk_budget=100)
+    with pytest.raises(mc.StudyTooLargeError, match="over host_budget = 100 bytes"):
+        _run(study, None, chunk_size=CHUNK, host_budget=100)
+    assert not store.exists()
+    ds = _run(
+        study,
+        store,
+        chunk_size=CHUNK,
+        disk_budget=needs["disk"],
+        host_budget=needs["host"],
+    )
+    used = sum(p.stat().st_size for p in store.iterdir())
+    assert used <= needs["disk"]
+    assert ds.attrs["complete"] == 1
+
+
 def test_the_manifest_records_what_computed_the_store(full_store):
     """The versions of the libraries that draw the samples (SciPy's and SALib's
     designs), compute them and estimate sensitivity indices from them."""
