@@ -34,7 +34,12 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   being the first of the next, 13 for Dopri8): a product, its replayed evaluation
   and their share of the loops around them.
 - `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
-  `vmap`-ped forward run (both at the defaults: the forward run in the batch loop).
+  `vmap`-ped forward run (both at the defaults: the forward run in the batch loop),
+  and its two halves alone (`vmap_record`, `vmap_backward`).
+  What bounds it: `vmap_field_us` and `vmap_product_us`, the field and its
+  product under `vmap` over the 8 sets in compiled loops, and `vmap_field_share`,
+  the share of the `vmap`-ped forward run that evaluates the field (the nominal
+  set's steps times the evaluations per step, at `vmap_field_us` each).
 
 At smoke size (`--quick`): 8 samples, 0.2 s, 11 outputs, one round.
 """
@@ -154,13 +159,14 @@ def vmap_throughput(batch: int, t_end: float, n_out: int, rounds: int, n_scipy: 
     }
 
 
-def product_loops(s, traj, n_evals: int) -> dict:
+def product_loops(s, traj, n_evals: int, sets) -> dict:
     """`{name: (fn, args)}`: `n_evals` evaluations of `simulate`'s vector field
     (`field`) and of its vector-Jacobian product in the state and the stiffness and
     damping (`product`), in compiled loops on single states: each at the run's
     middle output, nudged by the previous result (so that nothing is computed once
-    outside the loop)."""
-    from gradients import field_of_parameters, parameters, product_loop
+    outside the loop); `vmap_field` and `vmap_product` the same under `vmap` over
+    the parameter `sets` (a leading axis each)."""
+    from gradients import evaluation_loop, field_of_parameters, parameters, product_loop
 
     from elasticoop import _simulate
 
@@ -169,21 +175,18 @@ def product_loops(s, traj, n_evals: int) -> dict:
     middle = states.shape[0] // 2
     t0, x0, x_bar0 = traj.ts[middle], states[middle], states[middle + 1]
 
-    def loop(body):
-        @jax.jit
-        def run(params):
-            start = (jnp.zeros_like(x0), jnp.zeros(()))
-            return jax.lax.fori_loop(0, n_evals, lambda k, c: body(params, c), start)
-
-        return run
-
     def evaluate(params, carry):
         x_bar, acc = carry
         return field(t0 + 1e-12 * acc, x0 + 1e-12 * x_bar, params), acc
 
     args = (parameters(s.model),)
-    product = product_loop(field, t0, x0, x_bar0, n_evals)
-    return {"field": (loop(evaluate), args), "product": (product, args)}
+    width = sets[0].shape[0]
+    return {
+        "field": (evaluation_loop(evaluate, x0, n_evals), args),
+        "product": (product_loop(field, t0, x0, x_bar0, n_evals), args),
+        "vmap_field": (evaluation_loop(evaluate, x0, n_evals, width), (sets,)),
+        "vmap_product": (product_loop(field, t0, x0, x_bar0, n_evals, width), (sets,)),
+    }
 
 
 def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_000):
@@ -209,6 +212,8 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
     # pullback is returned, so that the record is computed), and the backward pass
     record = jax.jit(lambda p: jax.vjp(loss, p))
     _, pullback = record(params)
+    vmap_record = jax.jit(jax.vmap(lambda p: jax.vjp(loss, p)))
+    _, vmap_pullback = vmap_record(sets)
     calls = {
         "forward": (jax.jit(loss), (params,)),
         "grad": (jax.jit(jax.grad(loss)), (params,)),
@@ -216,6 +221,11 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "backward": (jax.jit(lambda pull: pull(jnp.ones(()))), (pullback,)),
         "vmap_forward": (jax.jit(jax.vmap(loss)), (sets,)),
         "vmap_grad": (jax.jit(jax.vmap(jax.grad(loss))), (sets,)),
+        "vmap_record": (vmap_record, (sets,)),
+        "vmap_backward": (
+            jax.jit(jax.vmap(lambda pull: pull(jnp.ones(())))),
+            (vmap_pullback,),
+        ),
     }
     # the first call of each (tracing, compiling and one run)
     compile_s = {}
@@ -224,7 +234,7 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         start = time.perf_counter()
         jax.block_until_ready(fn(*args))
         compile_s[name] = time.perf_counter() - start
-    calls.update(product_loops(s, traj, n_evals))
+    calls.update(product_loops(s, traj, n_evals, sets))
     times = interleaved_best_times(calls, rounds)
     c = times["product"] / times["field"]
     stages = eo.SimulationOptions().diffrax_solver().tableau.num_stages
@@ -247,6 +257,18 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "vmap_forward_ms": 1e3 * times["vmap_forward"],
         "vmap_grad_ms": 1e3 * times["vmap_grad"],
         "vmap_grad_over_vmap_forward": times["vmap_grad"] / times["vmap_forward"],
+        "vmap_record_over_vmap_forward": times["vmap_record"] / times["vmap_forward"],
+        "vmap_backward_over_vmap_forward": times["vmap_backward"]
+        / times["vmap_forward"],
+        "vmap_field_us": 1e6 * times["vmap_field"] / n_evals,
+        "vmap_product_us": 1e6 * times["vmap_product"] / n_evals,
+        "vmap_product_over_field": times["vmap_product"] / times["vmap_field"],
+        # the share of the vmapped forward run that evaluates the field (the
+        # nominal set's steps; each set takes about as many)
+        "vmap_field_share": times["vmap_field"]
+        / n_evals
+        * (int(steps) * (stages - 1))
+        / times["vmap_forward"],
     }
 
 

@@ -132,22 +132,36 @@ def field_of_parameters(scenario):
     return field
 
 
-def product_loop(field, t0, x0, x_bar0, n_evals: int):
+def product_loop(field, t0, x0, x_bar0, n_evals: int, width: int | None = None):
     """A compiled loop of `n_evals` vector-Jacobian products of `field(t, x,
     params)` in the state and the parameters (two arrays), with the cotangent
     `x_bar0`, at `(t0, x0)` nudged by the previous result (so that nothing is
-    computed once outside the loop): a function of the parameters."""
+    computed once outside the loop): a function of the parameters. With `width`,
+    the products of `width` parameter sets (the parameters with a leading axis of
+    that length) under `vmap`, as the adjoint takes them under `vmap`."""
+
+    def product(params, carry):
+        x_bar, acc = carry
+        t, x = t0 + 1e-12 * acc, x0 + 1e-12 * x_bar
+        _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
+        x_bar, p_bar = pullback(x_bar0)
+        return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
+
+    return evaluation_loop(product, x0, n_evals, width)
+
+
+def evaluation_loop(body, x0, n_evals: int, width: int | None = None):
+    """`n_evals` calls of `body(params, (x_bar, acc)) -> (x_bar, acc)` in a
+    compiled loop, from zeros: a function of the parameters. With `width`, `body`
+    under `vmap` over `width` lanes (parameters, `x_bar` and `acc` each with a
+    leading axis of that length)."""
+    lanes = () if width is None else (width,)
+    step = body if width is None else jax.vmap(body)
 
     @jax.jit
     def run(params):
-        def body(k, carry):
-            x_bar, acc = carry
-            t, x = t0 + 1e-12 * acc, x0 + 1e-12 * x_bar
-            _, pullback = jax.vjp(lambda x, p: field(t, x, p), x, params)
-            x_bar, p_bar = pullback(x_bar0)
-            return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
-
-        return jax.lax.fori_loop(0, n_evals, body, (jnp.zeros_like(x0), jnp.zeros(())))
+        start = (jnp.zeros(lanes + x0.shape), jnp.zeros(lanes))
+        return jax.lax.fori_loop(0, n_evals, lambda k, c: step(params, c), start)
 
     return run
 
