@@ -28,11 +28,12 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   `simulate`'s vector field in the state and the 24 parameters and the field
   alone, each `n_evals` times in a compiled loop whose body touches single states
   only (as the adjoint applies it), at a state of the run
-  (`product_over_field`, their ratio); and `backward_us_per_evaluation`, the
-  backward pass's time over the forward run's evaluations of the field (steps
-  times the evaluations per step: the stages less one, the last stage of a step
-  being the first of the next, 13 for Dopri8): a product, its replayed evaluation
-  and their share of the loops around them.
+  (`product_over_field`, their ratio; `field_share`, the share of the forward
+  run that evaluates the field at `field_us` each); and
+  `backward_us_per_evaluation`, the backward pass's time over the forward run's
+  evaluations of the field (steps times the evaluations per step: the stages less
+  one, the last stage of a step being the first of the next, 13 for Dopri8): a
+  product, its replayed evaluation and their share of the loops around them.
 - `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
   `vmap`-ped forward run (both at the defaults: the forward run in the batch loop),
   and its two halves alone (`vmap_record`, `vmap_backward`).
@@ -236,8 +237,10 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         compile_s[name] = time.perf_counter() - start
     calls.update(product_loops(s, traj, n_evals, sets))
     times = interleaved_best_times(calls, rounds)
-    c = times["product"] / times["field"]
     stages = eo.SimulationOptions().diffrax_solver().tableau.num_stages
+    # the forward run's evaluations of the field: the stages less one a step, the
+    # last stage of a step being the first of the next
+    evaluations = int(steps) * (stages - 1)
     return {
         "problem": f"default_scenario(), {float(ts[-1]):g} s, {len(ts)} outputs, "
         f"24 parameters; vmap over {width} parameter sets",
@@ -250,10 +253,9 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "backward_over_forward": times["backward"] / times["forward"],
         "field_us": 1e6 * times["field"] / n_evals,
         "product_us": 1e6 * times["product"] / n_evals,
-        "product_over_field": c,
-        "backward_us_per_evaluation": 1e6
-        * times["backward"]
-        / (int(steps) * (stages - 1)),
+        "product_over_field": times["product"] / times["field"],
+        "backward_us_per_evaluation": 1e6 * times["backward"] / evaluations,
+        "field_share": times["field"] / n_evals * evaluations / times["forward"],
         "vmap_forward_ms": 1e3 * times["vmap_forward"],
         "vmap_grad_ms": 1e3 * times["vmap_grad"],
         "vmap_grad_over_vmap_forward": times["vmap_grad"] / times["vmap_forward"],
@@ -263,11 +265,10 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "vmap_field_us": 1e6 * times["vmap_field"] / n_evals,
         "vmap_product_us": 1e6 * times["vmap_product"] / n_evals,
         "vmap_product_over_field": times["vmap_product"] / times["vmap_field"],
-        # the share of the vmapped forward run that evaluates the field (the
-        # nominal set's steps; each set takes about as many)
+        # (the nominal set's steps: each set takes about as many)
         "vmap_field_share": times["vmap_field"]
         / n_evals
-        * (int(steps) * (stages - 1))
+        * evaluations
         / times["vmap_forward"],
     }
 
