@@ -71,7 +71,7 @@ def test_all_trials_failing_is_not_convergence(small_budget):
     assert len(result.loss_history) == 1
 
 
-@pytest.mark.slow  # the plain simulations compile once per budget (3)
+@pytest.mark.slow  # the plain simulations compile once per budget (2)
 def test_step_budget_follows_the_fit(small_budget):
     """The start (0.4x the stiffness of the data's model) takes 82 steps, so its
     budget is 128; the truth takes 135. The budget must grow as the fit stiffens,
@@ -81,16 +81,43 @@ def test_step_budget_follows_the_fit(small_budget):
     truth = _with_stiffness(model, 1.2 * model.stiffness)
     start = _with_stiffness(model, 0.4 * model.stiffness)
     traces = eqx.debug.get_num_traces(residuals._sensitivities)
+    plain_traces = eqx.debug.get_num_traces(residuals.evaluate)
     result = identify(
         start, _experiment(truth), STIFFNESS, init="model", max_steps=40, progress=False
     )
     assert result.converged, result.reason
-    # the simulations with sensitivities compile once whatever the budget
+    # the simulations with sensitivities compile once whatever the budget, the
+    # plain ones once a budget: the start's simulations ran under the budget of
+    # 128 steps that the fit from it was given
     assert eqx.debug.get_num_traces(residuals._sensitivities) <= traces + 1
+    assert eqx.debug.get_num_traces(residuals.evaluate) <= plain_traces + 2
     np.testing.assert_allclose(
         result.estimate, np.ravel(truth.stiffness), rtol=RECOVERY_RTOL
     )
     assert any("step budget raised from 128 to 256" in n for n in result.notes)
+
+
+@pytest.mark.slow  # a fit (compiled for the test above but for one more budget)
+def test_a_start_needing_more_than_a_cheap_starts_budget_is_simulated_again(
+    small_budget, monkeypatch
+):
+    """The starts are simulated under the budget that a start needing few steps
+    gets (`MIN_BUDGET`). The start here takes 82 steps, more than a budget of 64:
+    it must be simulated again under the simulation settings' `max_steps` (not
+    refused as a start that fails), and the fit given the budget its 82 steps
+    call for (128), then reach the truth."""
+    monkeypatch.setattr(step_budget, "MIN_BUDGET", 64)
+    model, _ = _two_body()
+    truth = _with_stiffness(model, 1.2 * model.stiffness)
+    start = _with_stiffness(model, 0.4 * model.stiffness)
+    result = identify(
+        start, _experiment(truth), STIFFNESS, init="model", max_steps=40, progress=False
+    )
+    assert result.converged, result.reason
+    np.testing.assert_allclose(
+        result.estimate, np.ravel(truth.stiffness), rtol=RECOVERY_RTOL
+    )
+    assert any("simulations limited to 128 solver steps" in n for n in result.notes)
 
 
 @pytest.mark.slow  # a fit of two steps (compiled for the test above)

@@ -33,7 +33,7 @@ from .residuals import (
     with_step_budget,
 )
 from .result import IdentificationResult
-from .step_budget import START_MAX_STEPS, StepBudget
+from .step_budget import START_MAX_STEPS, StepBudget, step_budget
 from .uncertainty import (
     Uncertainty,
     check_identifiability_thresholds,
@@ -331,9 +331,18 @@ def identify(
         notes.append(f"the model's values are no start ({err})")
     evaluated = []
     u: np.ndarray | jax.Array
+    # The starts are simulated under the step budget that a start needing few
+    # steps is given, so that the fit from such a start runs the program compiled
+    # here; a start that needs more is simulated again under the cap.
+    screening = problem
+    if not fixed_budget:
+        screening = with_step_budget(problem, step_budget(0, options.max_steps))
     for label, p in candidates:
         u = np.concatenate([free.unconstrained(p), no_correction])
-        value, runs, _ = evaluate(jnp.asarray(u), problem)  # inf if failed
+        value, runs, _ = evaluate(jnp.asarray(u), screening)  # inf if failed
+        over = np.asarray(runs.status) == Status.MAX_STEPS_REACHED
+        if screening is not problem and np.any(over):
+            value, runs, _ = evaluate(jnp.asarray(u), problem)
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
         evaluated.append((float(value), label, p, u, ok, steps, runs.status))
     # the equation-error start wins ties (it is listed first; the sort is stable)

@@ -7,6 +7,11 @@ rejected like a failed simulation. The budget follows the fit: it is set from th
 steps the start needs and raised whenever an accepted point needs more than
 1/`STEP_BUDGET_FACTOR` of it, so that it never keeps the fit from points that
 need more steps than the start did.
+
+The starting points are simulated under the budget of a start that needs few
+steps (`step_budget(0)`, `MIN_BUDGET`), and only a start that needs more again
+under the simulation settings' `max_steps`: each budget is a compiled program of
+its own, and a fit from a cheap start then runs the program its start compiled.
 """
 
 import dataclasses
@@ -29,8 +34,7 @@ def step_budget(steps: int, cap: int = START_MAX_STEPS) -> int:
     rounded up to a power of 2 (fits of similar problems share their compiled
     functions, and a raise at least doubles it), and `cap` (the simulation
     settings' `max_steps`) where that is more than half of `cap`: each budget is
-    a compiled program of its own, and the start's simulations already ran under
-    `cap`."""
+    a compiled program of its own, not worth it for a limit close to `cap`."""
     wanted = max(MIN_BUDGET, math.ceil(STEP_BUDGET_FACTOR * int(steps)))
     budget = 1 << (wanted - 1).bit_length()
     return cap if 2 * budget > cap else budget
