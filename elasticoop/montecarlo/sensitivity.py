@@ -45,8 +45,13 @@ def _outputs_at(study: Study, values: dict) -> tuple[dict, jax.Array]:
 @eqx.filter_jit
 def _jacobians(study: Study, values: dict):
     def one(theta):
-        jac = jax.jacfwd(lambda t: _outputs_at(study, t)[0])(theta)
-        outputs, status = _outputs_at(study, theta)
+        # the outputs and status are those of the run that carries the tangents
+        # (one simulation of the sample, not two)
+        def outputs_with_aux(t):
+            outputs, status = _outputs_at(study, t)
+            return outputs, (outputs, status)
+
+        jac, (outputs, status) = jax.jacfwd(outputs_with_aux, has_aux=True)(theta)
         return jac, outputs, status
 
     return jax.vmap(one)(values)
