@@ -9,10 +9,13 @@ workers included) switches on `jax_log_compiles`, whose log records say how long
 each tracing (`Finished tracing ...`), lowering (`Finished jaxpr to MLIR module
 conversion ...`) and XLA compilation (`Finished XLA compilation of ...`) took,
 and writes them, with the test that was running, to a folder of its own. The
-summary adds them up: the CPU time of the tests (the sum of their wall times over
-the workers), and the share of it spent tracing, lowering and compiling. What
-the processes that tests start compile is in those tests' wall time only. Not
-part of `run.py`: it times the tests, not the library.
+summary adds them up: the tests' time (the sum of their wall times over the
+workers, "test-seconds") and the share of it spent tracing, lowering and
+compiling. What the processes that tests start compile is in those tests' wall
+time only; a program that the command line's compilation cache loads is logged
+(and counted) as a compilation; what is compiled while collecting the tests
+counts towards the share but not the tests' time. Not part of `run.py`: it times
+the tests, not the library.
 """
 
 import collections
@@ -25,6 +28,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import pytest
 
 _FOLDER = "SUITE_COMPILATION_LOG"
 _RECORD = re.compile(
@@ -66,6 +71,7 @@ def pytest_configure(config) -> None:
     logging.getLogger("jax").addHandler(_Handler())
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_runtest_protocol(item, nextitem):
     _current[0] = item.nodeid
     if _out:
@@ -84,18 +90,19 @@ def summarise(folder: Path) -> dict:
     """The records of `folder` added up: per kind, per test file, per program."""
     rows = []
     for path in sorted(folder.glob("*.jsonl")):
-        rows += [json.loads(line) for line in path.read_text().splitlines()]
-    started: dict[str, float] = {}
+        process = path.stem  # (pytest-xdist's controller reports tests it ran not)
+        rows += [[process, *json.loads(line)] for line in path.read_text().splitlines()]
+    started: dict[tuple[str, str], float] = {}
     wall: collections.Counter = collections.Counter()
     kinds: collections.Counter = collections.Counter()
     files: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     programs: dict[str, list] = collections.defaultdict(lambda: [0, 0.0])
-    for test, kind, program, value in rows:
+    for process, test, kind, program, value in rows:
         file = test.split("::")[0]
         if kind == "start":
-            started[test] = value
+            started[process, test] = value
         elif kind == "end":
-            seconds = value - started.pop(test, value)
+            seconds = value - started.pop((process, test), value)
             wall[file] += seconds
             files[file]["wall"] += seconds
         else:
@@ -108,7 +115,7 @@ def summarise(folder: Path) -> dict:
     by_file = sorted(files.items(), key=lambda item: -item[1]["wall"])
     by_program = sorted(programs.items(), key=lambda item: -item[1][1])
     return {
-        "tests_cpu_s": total,
+        "test_s": total,
         **{f"{k}_s": kinds[k] for k in _KINDS.values()},
         "compile_share": sum(kinds.values()) / total if total else float("nan"),
         "files": {f: dict(c) for f, c in by_file},
@@ -119,6 +126,8 @@ def summarise(folder: Path) -> dict:
 def main(argv: list[str]) -> None:
     json_path = None
     if argv[:1] == ["--json"]:
+        if len(argv) < 2:
+            sys.exit("--json needs a file name")
         json_path, argv = argv[1], argv[2:]
     pytest_args = argv or ["-n", "2", "-q", "-m", "slow"]
     here = Path(__file__).resolve().parent
@@ -135,7 +144,7 @@ def main(argv: list[str]) -> None:
         result |= summarise(Path(folder))
     print(
         f"pytest {' '.join(pytest_args)}: {wall:.1f} s wall, tests "
-        f"{result['tests_cpu_s']:.1f} CPU-s, of which tracing "
+        f"{result['test_s']:.1f} test-seconds, of which tracing "
         f"{result['tracing_s']:.1f} s, lowering {result['lowering_s']:.1f} s, "
         f"XLA compilation {result['compilation_s']:.1f} s "
         f"({100 * result['compile_share']:.0f} %)"

@@ -97,7 +97,7 @@ def test_step_budget_follows_the_fit(small_budget):
     assert any("step budget raised from 128 to 256" in n for n in result.notes)
 
 
-@pytest.mark.slow  # a fit (compiled for the test above but for one more budget)
+@pytest.mark.slow  # a fit (compiled for the test above but for 64 and max_steps)
 def test_a_start_needing_more_than_a_cheap_starts_budget_is_simulated_again(
     small_budget, monkeypatch
 ):

@@ -332,17 +332,21 @@ def identify(
     evaluated = []
     u: np.ndarray | jax.Array
     # The starts are simulated under the step budget that a start needing few
-    # steps is given, so that the fit from such a start runs the program compiled
-    # here; a start that needs more is simulated again under the cap.
+    # steps is given (`step_budget(0, max_steps)`), so that the fit from such a
+    # start runs the program compiled here; a start that reaches that budget is
+    # simulated again under `max_steps`.
     screening = problem
     if not fixed_budget:
         screening = with_step_budget(problem, step_budget(0, options.max_steps))
+    start_simulations = 0
     for label, p in candidates:
         u = np.concatenate([free.unconstrained(p), no_correction])
         value, runs, _ = evaluate(jnp.asarray(u), screening)  # inf if failed
+        start_simulations += len(experiments)
         over = np.asarray(runs.status) == Status.MAX_STEPS_REACHED
-        if screening is not problem and np.any(over):
+        if screening.max_steps < problem.max_steps and np.any(over):
             value, runs, _ = evaluate(jnp.asarray(u), problem)
+            start_simulations += len(experiments)
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
         evaluated.append((float(value), label, p, u, ok, steps, runs.status))
     # the equation-error start wins ties (it is listed first; the sort is stable)
@@ -542,9 +546,7 @@ def identify(
         start=np.asarray(start),
         uncertainty=unc,
         n_iterations=trace.n_iterations,
-        n_simulations=trace.n_simulations
-        + other_simulations
-        + len(evaluated) * len(experiments),
+        n_simulations=trace.n_simulations + other_simulations + start_simulations,
         n_rejected=trace.n_rejected,
         n_failed_trials=trace.n_failed_trials,
         method=method_name,

@@ -9,9 +9,13 @@ steps the start needs and raised whenever an accepted point needs more than
 need more steps than the start did.
 
 The starting points are simulated under the budget of a start that needs few
-steps (`step_budget(0)`, `MIN_BUDGET`), and only a start that needs more again
-under the simulation settings' `max_steps`: each budget is a compiled program of
-its own, and a fit from a cheap start then runs the program its start compiled.
+steps (`step_budget(0, max_steps)`: `MIN_BUDGET`, or `max_steps` where that is
+less than twice it), and a start that reaches it again under the simulation
+settings' `max_steps`. Each budget is a compiled program of its own: a fit from a
+start that needs at most `MIN_BUDGET / STEP_BUDGET_FACTOR` steps (512) runs the
+program its start compiled until the budget is raised; one from a start that
+needs more compiles its own budget, and one from a start that reaches
+`MIN_BUDGET` compiles `max_steps` as well.
 """
 
 import dataclasses
