@@ -270,8 +270,9 @@ def test_the_default_adjoint_is_stepwise_with_diffrax_for_the_rest():
         """The gradient's program as lowered for XLA (before compiling it)."""
         return jax.jit(jax.grad(lambda p: loss(p, adjoint))).lower(PARAMS).as_text()
 
-    assert program(None) == program(eo.StepwiseAdjoint())
-    assert program(None) != program(CHECKPOINTS)
+    default = program(None)
+    assert default == program(eo.StepwiseAdjoint())
+    assert default != program(CHECKPOINTS)
 
     def final_height(ts, adjoint):
         options = eo.SimulationOptions("tsit5", **TOL)
