@@ -9,7 +9,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from ._compile_options import fast_compile_jit
 from ._custom_types import (
@@ -151,13 +151,6 @@ def simulate(
         raise ValueError(
             f"model must be an ImmobileModel or MobileModel, got {type(model).__name__}"
         )
-    if batch_loop is not None and (
-        not isinstance(batch_loop, bool)
-        and (not isinstance(batch_loop, numbers.Integral) or batch_loop < 1)
-    ):
-        raise ValueError(
-            f"batch_loop must be True, False or a positive integer, got {batch_loop!r}"
-        )
     options = resolve_options(
         options,
         "simulate",
@@ -168,6 +161,49 @@ def simulate(
         gimbal_tol=gimbal_tol,
         link_tol=link_tol,
     )
+    return _simulate(
+        model,
+        y_init,
+        ydot_init,
+        ts,
+        forces,
+        options,
+        dt0=dt0,
+        adjoint=adjoint,
+        throw=throw,
+        prescribed=prescribed,
+        progress_meter=progress_meter,
+        batch_loop=batch_loop,
+    )
+
+
+def _simulate(
+    model: AbstractElasticModel,
+    y_init: ArrayInput,
+    ydot_init: ArrayInput,
+    ts: ArrayInput,
+    forces: AbstractForce | Callable[..., ArrayInput] | ArrayInput | None,
+    options: SimulationOptions,
+    *,
+    dt0: float | None = None,
+    adjoint: diffrax.AbstractAdjoint | StepwiseAdjoint | None = None,
+    throw: bool | None = None,
+    prescribed: Validated[PrescribedMotion | None] = None,
+    progress_meter: diffrax.AbstractProgressMeter | None = None,
+    batch_loop: bool | int | None = None,
+    step_limit: Int[Array, ""] | None = None,
+) -> Trajectory:
+    """`simulate` with its options resolved, and a `step_limit`: a traced limit on
+    the solver steps below the options' `max_steps` (a run reaching it stops with
+    `Status.MAX_STEPS_REACHED`, as at `max_steps`), so that runs under different
+    limits share one compiled program."""
+    if batch_loop is not None and (
+        not isinstance(batch_loop, bool)
+        and (not isinstance(batch_loop, numbers.Integral) or batch_loop < 1)
+    ):
+        raise ValueError(
+            f"batch_loop must be True, False or a positive integer, got {batch_loop!r}"
+        )
     diffrax_solver = options.diffrax_solver()
     fallback = False
     if adjoint is None:
@@ -228,6 +264,7 @@ def simulate(
         diffrax.NoProgressMeter() if progress_meter is None else progress_meter,
         batch_loop,
         fallback,
+        step_limit,
     )
     if throw is False:
         return traj
@@ -376,6 +413,7 @@ def _solve(
     progress_meter: diffrax.AbstractProgressMeter,
     batch_loop: bool | int = False,
     fallback: bool = False,
+    step_limit: Int[Array, ""] | None = None,
 ) -> Trajectory:
     # Starts that are not simulated (only possible when traced; concrete ones are
     # refused by `simulate`): NaN or inf in the initial state, a start at the
@@ -437,7 +475,9 @@ def _solve(
     if jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)
     resolution = jnp.finfo(ts.dtype).eps * jnp.maximum(jnp.abs(ts[0]), jnp.abs(ts[-1]))
-    controller = StopFailedSteps(controller, MIN_STEP_ULPS * resolution, halt)
+    controller = StopFailedSteps(
+        controller, MIN_STEP_ULPS * resolution, halt, step_limit=step_limit
+    )
     zero = jnp.zeros((), dtype=y_init.dtype)
     args = (model, force, side, prescribed, ts[-1])
     sol = integrate(

@@ -77,16 +77,18 @@ def test_all_trials_failing_is_not_convergence(small_budget):
     assert len(result.loss_history) == 1
 
 
-@pytest.mark.slow  # the plain simulations compile once per budget (2)
+@pytest.mark.slow  # a fit
 def test_step_budget_follows_the_fit(small_budget, monkeypatch):
     """The start (0.4x the stiffness of the data's model) takes 82 steps, so its
     budget is 128; the truth takes 135. The budget must grow as the fit stiffens,
     and the fit reach the truth (with a budget fixed at the start's, every trial
-    near the truth failed and the fit stopped short)."""
+    near the truth failed and the fit stopped short). The budget is a traced
+    value: the plain simulations compile once whatever it is."""
     model, _ = _two_body()
     truth = _with_stiffness(model, 1.2 * model.stiffness)
     start = _with_stiffness(model, 0.4 * model.stiffness)
     traces = eqx.debug.get_num_traces(residuals._sensitivities)
+    plain_traces = eqx.debug.get_num_traces(residuals.evaluate)
     budgets = []  # the step budget of each plain evaluation, in order
     evaluate = residuals.evaluate
 
@@ -100,10 +102,11 @@ def test_step_budget_follows_the_fit(small_budget, monkeypatch):
         start, _experiment(truth), STIFFNESS, init="model", max_steps=40, progress=False
     )
     assert result.converged, result.reason
-    # the simulations with sensitivities compile once whatever the budget; the
-    # plain ones once a budget, and the start ran under the budget of 128 steps
-    # that the fit from it was given (not under max_steps)
+    # the simulations with and without sensitivities compile once whatever the
+    # budget, and the start ran under the budget of 128 steps that the fit from
+    # it was given (not under max_steps)
     assert eqx.debug.get_num_traces(residuals._sensitivities) <= traces + 1
+    assert eqx.debug.get_num_traces(evaluate) <= plain_traces + 1
     assert budgets[0] == 128 and set(budgets) == {128, 256}
     np.testing.assert_allclose(
         result.estimate, np.ravel(truth.stiffness), rtol=RECOVERY_RTOL
@@ -111,7 +114,7 @@ def test_step_budget_follows_the_fit(small_budget, monkeypatch):
     assert any("step budget raised from 128 to 256" in n for n in result.notes)
 
 
-@pytest.mark.slow  # a fit (compiled for the test above but for 64 and max_steps)
+@pytest.mark.slow  # a fit (compiled for the test above)
 def test_a_start_needing_more_than_a_cheap_starts_budget_is_simulated_again(
     small_budget, monkeypatch
 ):
@@ -205,5 +208,5 @@ def test_step_budget_policy():
     assert "raised from 4096 to 8192 at iteration 4" in budget.notes[-1]
     fixed = step_budget.StepBudget(adaptive=False)
     assert fixed.follow(fixed.start(problem, 30), 10_000, 2) is problem
-    # the cap is the start's own program (no budget), not a budget equal to it
-    assert budget.follow(problem, 7196, 5).step_budget is None
+    # at most the simulation options' max_steps
+    assert budget.follow(problem, 7196, 5).max_steps == 100_000

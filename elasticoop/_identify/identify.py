@@ -332,12 +332,13 @@ def identify(
     evaluated = []
     u: np.ndarray | jax.Array
     # The starts are simulated under the step budget that a start needing few
-    # steps is given (`step_budget(0, max_steps)`), so that the fit from such a
-    # start runs the program compiled here; a start that reaches that budget is
-    # simulated again under `max_steps`.
-    screening = problem
+    # steps is given (`step_budget(0, max_steps)`); a start that reaches it is
+    # simulated again under `max_steps`. The budget is a traced value: the fit's
+    # budgets run the program compiled here.
+    screening = uncapped = problem
     if not fixed_budget:
         screening = with_step_budget(problem, step_budget(0, options.max_steps))
+        uncapped = with_step_budget(problem, options.max_steps)
     start_simulations = 0
     for label, p in candidates:
         u = np.concatenate([free.unconstrained(p), no_correction])
@@ -345,7 +346,7 @@ def identify(
         start_simulations += len(experiments)
         over = np.asarray(runs.status) == Status.MAX_STEPS_REACHED
         if screening.max_steps < problem.max_steps and np.any(over):
-            value, runs, _ = evaluate(jnp.asarray(u), problem)
+            value, runs, _ = evaluate(jnp.asarray(u), uncapped)
             start_simulations += len(experiments)
         ok, steps = np.asarray(runs.ok), np.asarray(runs.steps)
         evaluated.append((float(value), label, p, u, ok, steps, runs.status))

@@ -32,7 +32,7 @@ from .._analysis import rest_state
 from .._forces import PoseTracking, pad_to_bodies
 from .._lagrange import elastic_forces
 from .._options import SimulationOptions
-from .._simulate import simulate
+from .._simulate import _simulate
 from .experiment import Experiment, batch_experiments
 from .parameters import FreeParameters
 
@@ -89,17 +89,18 @@ class FitProblem(eqx.Module):
     # rather than the experiment's numbers.
     hold_at_rest: bool = eqx.field(static=True, default=False)
     # The most solver steps of a simulation without sensitivities (None: the
-    # options' `max_steps`); see `step_budget.py`. The simulations with
-    # sensitivities, taken only where the one without succeeded, run under the
-    # options' `max_steps`, so that they compile once whatever the budget.
-    step_budget: int | None = eqx.field(static=True, default=None)
+    # options' `max_steps`); see `step_budget.py`. An array, the traced step
+    # limit of a simulation compiled for the options' `max_steps`: every budget
+    # runs the same program. The simulations with sensitivities, taken only where
+    # the one without succeeded, run under the options' `max_steps`.
+    step_budget: Int[Array, ""] | None = None
 
     @property
     def max_steps(self) -> int:
         """The most solver steps of a simulation without sensitivities."""
         if self.step_budget is None:
             return int(self.options.max_steps)
-        return self.step_budget
+        return int(self.step_budget)
 
     @property
     def n_residuals(self) -> int:
@@ -186,12 +187,13 @@ def with_scaling(problem: FitProblem, scale, u_offset, u_scale) -> FitProblem:
 
 def with_step_budget(problem: FitProblem, max_steps: int | None) -> FitProblem:
     """The same problem with the simulations without sensitivities allowed
-    `max_steps` solver steps (None: the options' `max_steps`). A static setting:
-    `evaluate` compiles anew for each budget, `jacobian` does not. A budget
-    equal to the options' `max_steps` is no budget."""
-    budget = None if max_steps is None else int(max_steps)
-    if budget == problem.options.max_steps:
-        budget = None  # the same simulations: the same compiled programs
+    `max_steps` solver steps (at most the options' `max_steps`; None: no budget,
+    the options' `max_steps`). A traced value: `evaluate` compiles once for every
+    budget (and once without one)."""
+    budget = None
+    if max_steps is not None:
+        limit = min(int(max_steps), int(problem.options.max_steps))
+        budget = jnp.asarray(limit, jnp.int32)
     return dataclasses.replace(problem, step_budget=budget)
 
 
@@ -211,6 +213,7 @@ def _simulate_batch(
     options: SimulationOptions,
     adjoint,
     hold_at_rest: bool = False,
+    step_limit: Int[Array, ""] | None = None,
 ):
     hold = (
         hold_at_rest
@@ -224,15 +227,16 @@ def _simulate_batch(
             # the feedforward that holds the contact bodies at rest in y0
             held = (elastic_forces(model, y0) - model.gravity_forces())[1:]
             forces = eqx.tree_at(lambda f: f.feedforward, forces, held)
-        return simulate(
+        return _simulate(
             model,
             y0,
             ydot0,
             e.ts,
-            forces=forces,
+            forces,
+            options,
             adjoint=adjoint,
             throw=False,
-            **options.kwargs(),
+            step_limit=step_limit,
         )
 
     return eqx.filter_vmap(one)(data.experiments, y_init, ydot_init)
@@ -311,13 +315,17 @@ def residuals_by_experiment(
     along the last axis with measured $\\dot Y$), and how each simulation went
     (`Runs`)."""
     model = fitted_model(u, problem)
-    options = problem.options
-    if problem.step_budget is not None:
-        options = dataclasses.replace(options, max_steps=problem.step_budget)
     out, ok_all, status, steps = [], [], [], []
     for data, (y0, ydot0) in zip(problem.batches, initial_states(u, problem)):
         traj = _simulate_batch(
-            model, data, y0, ydot0, options, adjoint, problem.hold_at_rest
+            model,
+            data,
+            y0,
+            ydot0,
+            problem.options,
+            adjoint,
+            problem.hold_at_rest,
+            problem.step_budget,
         )
         r = jnp.where(data.y_weight > 0, (traj.y - data.y) * data.y_weight, 0.0)
         if data.ydot is not None and data.ydot_weight is not None:  # set together

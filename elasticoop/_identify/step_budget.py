@@ -11,11 +11,8 @@ need more steps than the start did.
 The starting points are simulated under the budget of a start that needs few
 steps (`step_budget(0, max_steps)`: `MIN_BUDGET`, or `max_steps` where that is
 less than twice it), and a start that reaches it again under the simulation
-settings' `max_steps`. Each budget is a compiled program of its own: a fit from a
-start that needs at most `MIN_BUDGET / STEP_BUDGET_FACTOR` steps (512) runs the
-program its start compiled until the budget is raised; one from a start that
-needs more compiles its own budget, and one from a start that reaches
-`MIN_BUDGET` compiles `max_steps` as well.
+settings' `max_steps`. The budget is a traced value (`FitProblem.step_budget`):
+the starts, the fit and every raise of its budget run one compiled program.
 """
 
 import dataclasses
@@ -35,10 +32,8 @@ MIN_BUDGET = 4096
 def step_budget(steps: int, cap: int = START_MAX_STEPS) -> int:
     """The budget of trial simulations near a point whose simulations took `steps`
     solver steps: `STEP_BUDGET_FACTOR` times `steps`, at least `MIN_BUDGET`,
-    rounded up to a power of 2 (fits of similar problems share their compiled
-    functions, and a raise at least doubles it), and `cap` (the simulation
-    settings' `max_steps`) where that is more than half of `cap`: each budget is
-    a compiled program of its own, not worth it for a limit close to `cap`."""
+    rounded up to a power of 2 (a raise at least doubles it), and `cap` (the
+    simulation settings' `max_steps`) where that is more than half of `cap`."""
     wanted = max(MIN_BUDGET, math.ceil(STEP_BUDGET_FACTOR * int(steps)))
     budget = 1 << (wanted - 1).bit_length()
     return cap if 2 * budget > cap else budget

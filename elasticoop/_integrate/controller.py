@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, PyTree
+from jaxtyping import Array, Bool, Float, Int, PyTree
 
 from .._custom_types import Scalar
 from .fused_sums import all_finite
@@ -34,6 +34,9 @@ class StepRecord(NamedTuple):
     steps: AcceptedSteps
     # a recording controller's: all the accepted steps, in its `StepLayout`
     history: AcceptedSteps | None
+    # with a step limit: the steps tried so far, and the end of the solve
+    n_tried: Int[Array, ""] | None = None
+    t_final: Scalar | None = None
 
     @property
     def t_start(self) -> Scalar:
@@ -54,7 +57,10 @@ class StopFailedSteps(AbstractStepRecorder):
     time, and shorter steps only repeat that. Or when the next step cannot advance
     time any more (the step size has collapsed on finite values). Or, from the
     first step, when `halt` is set (a start that is not simulated). Otherwise it is
-    `controller`.
+    `controller`. With a `step_limit` (a traced number of steps, below the solve's
+    static `max_steps`) it also ends the solve as diffrax's `max_steps` does
+    (`RESULTS.max_steps_reached`) when the step tried is the `step_limit`-th and the
+    solve has not reached its end: a limit that changes without compiling anew.
 
     Its state is a `StepRecord`: `controller`'s state, whether the last step tried
     held NaN or inf, which tells a non-finite failure from a collapse of the step
@@ -66,6 +72,8 @@ class StopFailedSteps(AbstractStepRecorder):
     # one value, or one for each element of a batch the batch loop integrates
     min_step: Float[Array, "*batch"]
     halt: Bool[Array, "*batch"]
+    # the most steps tried (None: the solve's `max_steps` only)
+    step_limit: Int[Array, ""] | None
     # `controller`'s, which diffrax reads from the outermost controller
     rtol: int | float | Array | np.ndarray
     atol: int | float | Array | np.ndarray
@@ -79,17 +87,21 @@ class StopFailedSteps(AbstractStepRecorder):
         min_step: Float[Array, "*batch"],
         halt: Bool[Array, "*batch"],
         layout: StepLayout | None = None,
+        step_limit: Int[Array, ""] | None = None,
     ):
         self.controller = controller
         self.min_step = min_step
         self.halt = halt
+        self.step_limit = step_limit
         self.rtol = controller.rtol
         self.atol = controller.atol
         self.norm = controller.norm
         self.layout = layout
 
     def recording(self, layout: StepLayout) -> "StopFailedSteps":
-        return StopFailedSteps(self.controller, self.min_step, self.halt, layout)
+        return StopFailedSteps(
+            self.controller, self.min_step, self.halt, layout, self.step_limit
+        )
 
     @property
     def records(self) -> bool:
@@ -147,7 +159,13 @@ class StopFailedSteps(AbstractStepRecorder):
                 times,
                 jax.tree.map(lambda y: slots(y, layout.spare + 1, 0), y0),
             )
-        return t_next, StepRecord(state, jnp.array(False), t0, steps, history)
+        n_tried = t_final = None
+        if self.step_limit is not None:
+            n_tried, t_final = jnp.array(0, jnp.int32), jnp.asarray(t1)
+        record = StepRecord(
+            state, jnp.array(False), t0, steps, history, n_tried, t_final
+        )
+        return t_next, record
 
     def adapt_step_size(
         self,
@@ -174,6 +192,16 @@ class StopFailedSteps(AbstractStepRecorder):
         stalled = jnp.logical_not(next_t1 > next_t0)
         rejected = jnp.logical_not(keep)
         stop = self.halt | rejected & (short & ~finite | stalled)
+        n_tried = controller_state.n_tried
+        if self.step_limit is not None:
+            assert n_tried is not None and controller_state.t_final is not None
+            n_tried = n_tried + 1
+            # (the end of diffrax's loop: the step kept ends at the solve's end)
+            ended = keep & (next_t0 >= controller_state.t_final)
+            limit = (n_tried >= self.step_limit) & ~ended
+            result = diffrax.RESULTS.where(
+                limit, diffrax.RESULTS.max_steps_reached, result
+            )
         result = diffrax.RESULTS.where(stop, diffrax.RESULTS.dt_min_reached, result)
 
         # the last accepted step: a rejected one leaves it as it was
@@ -208,5 +236,7 @@ class StopFailedSteps(AbstractStepRecorder):
                 history.t_end.at[slot].set(t1),
                 jax.tree.map(lambda b, y: b.at[y_slot].set(y), history.y_start, y0),
             )
-        record = StepRecord(state, ~finite, t1, steps, history)
+        record = StepRecord(
+            state, ~finite, t1, steps, history, n_tried, controller_state.t_final
+        )
         return keep, next_t0, next_t1, made_jump, record, result
