@@ -202,6 +202,10 @@ def test_step_budget_policy():
     budget = step_budget.StepBudget(adaptive=True)
     problem = budget.start(problem, 30)
     assert problem.step_budget == 4096
+    # reverse-mode gradients take it as the static max_steps (buffers sized by it)
+    static = residuals.with_static_budget(problem)
+    assert static.step_budget is None and static.options.max_steps == 4096
+    assert residuals.with_static_budget(static) is static
     assert budget.follow(problem, 512, 3) is problem
     raised = budget.follow(problem, 513, 4)
     assert raised.step_budget == 8192 and budget.raised_to == 8192

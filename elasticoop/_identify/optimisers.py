@@ -47,6 +47,7 @@ from .residuals import (
     with_held,
     with_jacobian_loss_limit,
     with_scaling,
+    with_static_budget,
 )
 from .step_budget import StepBudget
 
@@ -603,14 +604,16 @@ def optax_minimise(
         optimizer.init(u),
     )
     linesearch = optax.tree.get(state, "value") is not None
+    # (the gradients' simulations under the budget as a static setting)
+    gradients = with_static_budget(problem)
     if not linesearch:
-        value, grad, _ = _value_and_grad(u, problem)
+        value, grad, _ = _value_and_grad(u, gradients)
         trace.n_simulations += n_experiments
     for _ in range(max_steps):
         halved = False
         if linesearch:
             u_new, state, value, grad, steps = _linesearch_step(
-                optimizer, u, state, problem
+                optimizer, u, state, gradients
             )
             # the first call also evaluates the loss at u0
             trace.n_simulations += n_experiments * (
@@ -633,7 +636,7 @@ def optax_minimise(
             updates, state = _plain_update(optimizer, u, state, grad)
             for _halving in range(MAX_HALVINGS):
                 u_new = u + updates
-                value_new, grad_new, runs = _value_and_grad(u_new, problem)
+                value_new, grad_new, runs = _value_and_grad(u_new, gradients)
                 trace.n_simulations += n_experiments
                 trace.n_trials += 1
                 if np.isfinite(float(value_new)):
@@ -661,6 +664,7 @@ def optax_minimise(
         if budget.adaptive:
             steps_new = int(np.max(np.asarray(runs.steps)))
             problem = budget.follow(problem, steps_new, trace.n_iterations)
+            gradients = with_static_budget(problem)
         # a step that raised the loss, or one halved because the full one failed,
         # is no sign of convergence: a plain optimiser (no line search) goes on
         done = (

@@ -197,6 +197,17 @@ def with_step_budget(problem: FitProblem, max_steps: int | None) -> FitProblem:
     return dataclasses.replace(problem, step_budget=budget)
 
 
+def with_static_budget(problem: FitProblem) -> FitProblem:
+    """The same problem with its step budget as its options' `max_steps`, a static
+    setting (a compiled program for each budget), instead of a traced limit. For
+    reverse-mode gradients: `StepwiseAdjoint` records the steps in buffers sized by
+    the static `max_steps`, which a traced budget would leave at the cap."""
+    if problem.step_budget is None:
+        return problem
+    options = dataclasses.replace(problem.options, max_steps=problem.max_steps)
+    return dataclasses.replace(problem, options=options, step_budget=None)
+
+
 def with_jacobian_loss_limit(problem: FitProblem, limit) -> FitProblem:
     """The same problem computing Jacobians only where the loss (of the scaled
     residuals) is at most `limit` (a traced value: no recompilation)."""
