@@ -2,9 +2,11 @@
 
 In a fresh process the first `simulate` and the first scenario load are mostly XLA
 compiling. `FAST_COMPILE` turns off XLA's CPU fusion emitters, so that fused loops
-are emitted by its older elemental emitter: the library's programs compile in less
-time and run in the same time (`python benchmarks/latency.py` and
-`benchmarks/montecarlo.py` measure both). The option is one of the CPU compiler's.
+are emitted by its older elemental emitter, and sets XLA's backend optimisation
+level to 1 (of 3): the library's programs compile in less time and run in the same
+time (`python benchmarks/compile_options.py` measures both, beside XLA's defaults).
+They are passed where JAX's default backend is the CPU, whose compiler they were
+measured with.
 
 JAX accepts compiler options only on the outermost compiled program, so
 `fast_compile_jit` passes them only where its function is called outside any JAX
@@ -26,26 +28,43 @@ from ._compat import outside_transformations
 
 _Fn = TypeVar("_Fn", bound=Callable[..., Any])
 
-FAST_COMPILE: dict[str, str | bool | int] = {"xla_cpu_use_fusion_emitters": False}
+FAST_COMPILE: dict[str, str | bool | int] = {
+    "xla_cpu_use_fusion_emitters": False,
+    "xla_backend_optimization_level": 1,
+}
 
 # False once XLA has refused the options (see the module's docstring).
 _options_known = [True]
 
 
+def fast_compile_options() -> dict[str, str | bool | int]:
+    """`FAST_COMPILE` where JAX's default backend is the CPU, whose compiler the
+    options were measured with; none on another backend."""
+    return FAST_COMPILE if jax.default_backend() == "cpu" else {}
+
+
 def fast_compile_jit(fn: _Fn) -> _Fn:
-    """`eqx.filter_jit(fn)`, compiled with `FAST_COMPILE` when called outside any
-    JAX transformation (and inlined into the caller's program otherwise, as
-    `eqx.filter_jit` is)."""
+    """`eqx.filter_jit(fn)`, compiled with `fast_compile_options()` when called
+    outside any JAX transformation (and inlined into the caller's program
+    otherwise, as `eqx.filter_jit` is)."""
     nested = eqx.filter_jit(fn)
-    # `filter_jit` passes further keywords on to `jax.jit` (its typed overloads
-    # do not list them).
-    outermost = eqx.filter_jit(fn, compiler_options=FAST_COMPILE)  # type: ignore[call-overload]
+    # (made at the first call: the backend is not known before)
+    outermost: list[Any] = []
+
+    def outermost_jit() -> Any:
+        if not outermost:
+            # `filter_jit` passes further keywords on to `jax.jit` (its typed
+            # overloads do not list them).
+            outermost.append(
+                eqx.filter_jit(fn, compiler_options=fast_compile_options())  # type: ignore[call-overload]
+            )
+        return outermost[0]
 
     @functools.wraps(fn)
     def call(*args: Any, **kwargs: Any) -> Any:
         if _options_known[0] and outside_transformations():
             try:
-                return outermost(*args, **kwargs)
+                return outermost_jit()(*args, **kwargs)
             except jax.errors.JaxRuntimeError as err:
                 if not _refuses_options(err):
                     raise
@@ -53,7 +72,7 @@ def fast_compile_jit(fn: _Fn) -> _Fn:
         return nested(*args, **kwargs)
 
     def lower(*args: Any, **kwargs: Any) -> Any:  # as filter_jit's
-        jitted = outermost if _options_known[0] else nested
+        jitted = outermost_jit() if _options_known[0] else nested
         return jitted.lower(*args, **kwargs)  # type: ignore[union-attr]
 
     call.lower = lower  # type: ignore[attr-defined]

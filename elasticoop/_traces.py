@@ -41,7 +41,7 @@ import numpy as np
 
 from ._cache import active_cache_folder
 from ._compat import outside_transformations
-from ._compile_options import FAST_COMPILE
+from ._compile_options import fast_compile_options
 from ._version import __version__
 
 _Fn = TypeVar("_Fn", bound=Callable[..., Any])
@@ -84,7 +84,7 @@ def stored_program(fn: _Fn) -> _Fn:
                     return fn(*args)
                 _store(path, exported)
             _initialise_lapack(exported)
-            program = jax.jit(exported.call, compiler_options=FAST_COMPILE)
+            program = jax.jit(exported.call, compiler_options=fast_compile_options())
             _programs[path] = program
         try:
             return program(*leaves)
@@ -120,7 +120,7 @@ def _key(fn: Callable, static: Any, dynamic_tree: Any, leaves: list) -> str | No
                     for x in leaves
                 ]
             ),
-            repr(sorted(FAST_COMPILE.items())),
+            repr(sorted(fast_compile_options().items())),
             f"x64={jax.config.read('jax_enable_x64')}",
             f"equinox errors={_equinox_error_mode()}",
             f"backend={jax.default_backend()}",

@@ -4,14 +4,18 @@ import shutil
 import tempfile
 
 # Compile the tests' own programs as the library compiles its outermost ones
-# (`elasticoop._compile_options.FAST_COMPILE`): XLA's CPU fusion emitters off, which
-# shortens compilation, most of a test's time, and runs in the same time. Set before
-# JAX starts its backend, which reads the flags once; the processes the tests start
-# inherit them.
-if "--xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (
-        os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false"
-    ).strip()
+# (`elasticoop._compile_options.FAST_COMPILE`: XLA's CPU fusion emitters off and
+# LLVM's optimisation level 1), which shortens compilation, most of a test's time,
+# and runs in the same time (`benchmarks/compile_options.py`). Set before JAX starts
+# its backend, which reads the flags once; the processes the tests start inherit
+# them. An option already in `XLA_FLAGS` is left as it is.
+from elasticoop._compile_options import FAST_COMPILE  # noqa: E402
+
+_flags = os.environ.get("XLA_FLAGS", "")
+for _name, _value in FAST_COMPILE.items():
+    if f"--{_name}" not in _flags:
+        _flags += f" --{_name}={str(_value).lower()}"
+os.environ["XLA_FLAGS"] = _flags.strip()
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

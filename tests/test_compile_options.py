@@ -12,6 +12,12 @@ from elasticoop import _compile_options
 from elasticoop._compat import outside_transformations
 from elasticoop._compile_options import fast_compile_jit
 
+# XLA's own values of the options `FAST_COMPILE` sets
+XLA_DEFAULTS = {
+    "xla_cpu_use_fusion_emitters": True,
+    "xla_backend_optimization_level": 3,
+}
+
 
 def test_outside_transformations_is_false_under_every_transformation():
     seen = {}
@@ -79,10 +85,18 @@ def test_the_fast_compiled_simulation_matches_one_compiled_without_options():
 
     fast = run(model)  # outermost: compiled with FAST_COMPILE
     # inside the caller's jit: the caller's options, here XLA's defaults (the tests
-    # otherwise compile with the fusion emitters off, see conftest.py)
-    plain = jax.jit(run, compiler_options={"xla_cpu_use_fusion_emitters": True})(model)
+    # otherwise compile with FAST_COMPILE's options, see conftest.py)
+    assert set(XLA_DEFAULTS) == set(_compile_options.FAST_COMPILE)
+    plain = jax.jit(run, compiler_options=XLA_DEFAULTS)(model)
     assert int(fast.n_steps) == int(plain.n_steps)
     # equal to rounding (the two programs differ in how XLA emits the loops)
     for field in ("y", "ydot"):
         a, b = np.asarray(getattr(fast, field)), np.asarray(getattr(plain, field))
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * np.max(np.abs(b)))
+
+
+def test_the_options_are_passed_on_the_cpu_only(monkeypatch):
+    # (the tests run on the CPU)
+    assert _compile_options.fast_compile_options() == _compile_options.FAST_COMPILE
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert _compile_options.fast_compile_options() == {}
