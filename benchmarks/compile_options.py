@@ -18,7 +18,9 @@ best of `rounds` each:
 
 Programs (`default_scenario()`: 3 bodies, 2 grasps, 3 s, 301 outputs, `simulate`'s
 defaults): `simulate` (`forward`), `jax.grad` of a trajectory loss with respect
-to the 24 stiffness and damping parameters (`grad`, the stepwise adjoint), and
+to the 24 stiffness and damping parameters (`grad`, the stepwise adjoint), the
+trajectory's Jacobian with respect to them in forward mode (`jacfwd`, with
+`diffrax.ForwardMode()`, as identification's Levenberg-Marquardt takes it), and
 `simulate` under `jax.vmap` over 64 stiffness samples (`vmap_forward`, the batch
 loop). At smoke size (`--quick`): 0.2 s, 8 samples, one round.
 """
@@ -27,6 +29,7 @@ import sys
 import time
 from pathlib import Path
 
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -54,9 +57,11 @@ def programs(t_end: float, width: int) -> dict:
     ts = s.ts[s.ts <= t_end + 1e-12]
     params = (s.model.stiffness, s.model.damping)
 
-    def trajectory(params):
+    def trajectory(params, adjoint=None):
         model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
-        return eo.simulate(model, s.y_init, s.ydot_init, ts, forces=s.forces).y
+        return eo.simulate(
+            model, s.y_init, s.ydot_init, ts, forces=s.forces, adjoint=adjoint
+        ).y
 
     target = trajectory(params) + 1e-3
 
@@ -67,6 +72,10 @@ def programs(t_end: float, width: int) -> dict:
     return {
         "forward": (loss, (params,)),
         "grad": (jax.grad(loss), (params,)),
+        "jacfwd": (
+            jax.jacfwd(lambda p: trajectory(p, diffrax.ForwardMode())),
+            (params,),
+        ),
         "vmap_forward": (
             jax.vmap(lambda k: trajectory((k, params[1]))),
             (params[0] * scale,),
