@@ -5,11 +5,11 @@ import tempfile
 
 # Compile the tests' own programs as the library compiles its outermost ones
 # (`elasticoop._compile_options.FAST_COMPILE`: XLA's CPU fusion emitters off and
-# LLVM's optimisation level 1), which shortens compilation, most of a test's time,
-# and runs in the same time (`benchmarks/compile_options.py`). Set before JAX starts
-# its backend, which reads the flags once; the processes the tests start inherit
-# them. An option already in `XLA_FLAGS` is left as it is.
-from elasticoop._compile_options import FAST_COMPILE  # noqa: E402
+# its backend optimisation level 1 of 3), which shortens compilation, most of a
+# test's time (`benchmarks/compile_options.py`). Set before JAX starts its backend,
+# which reads the flags once (importing elasticoop does not start it); the processes
+# the tests start inherit them. An option already in `XLA_FLAGS` is left as it is.
+from elasticoop._compile_options import FAST_COMPILE
 
 _flags = os.environ.get("XLA_FLAGS", "")
 for _name, _value in FAST_COMPILE.items():
