@@ -2,12 +2,13 @@
 
     python benchmarks/compile_options.py [--quick] [--json out.json]
 
-Each program is lowered once and compiled under each set of options below, the
-compilations and the runs timed in turn in every round (a fresh lowering for each
-compilation, after JAX's caches are cleared, so that no compiled program is reused), the
-best of `rounds` each:
+Each program is compiled under each set of options below, the compilations and the
+runs timed in turn in every round, the best of `rounds` each. Each compilation is
+of a fresh lowering after JAX's caches are cleared, with JAX's persistent cache off,
+so that no compiled program is reused. Every set gives all the options it is about,
+so that `XLA_FLAGS` changes none of them:
 
-- `xla_defaults`: XLA's own defaults;
+- `xla_defaults`: XLA's own values of `FAST_COMPILE`'s options;
 - `fusion_emitters_off`: `xla_cpu_use_fusion_emitters=False`, what
   `FAST_COMPILE` held before;
 - `fast_compile`: `elasticoop._compile_options.FAST_COMPILE` as it is now (the
@@ -40,9 +41,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import elasticoop as eo  # noqa: E402
 from elasticoop._compile_options import FAST_COMPILE  # noqa: E402
 
+# XLA's own values of the options `FAST_COMPILE` sets
+XLA_DEFAULTS = {
+    "xla_cpu_use_fusion_emitters": True,
+    "xla_backend_optimization_level": 3,
+}
 OPTIONS = {
-    "xla_defaults": {},
-    "fusion_emitters_off": {"xla_cpu_use_fusion_emitters": False},
+    "xla_defaults": XLA_DEFAULTS,
+    "fusion_emitters_off": {**XLA_DEFAULTS, "xla_cpu_use_fusion_emitters": False},
     "fast_compile": dict(FAST_COMPILE),
     "optimization_level_0": {
         "xla_cpu_use_fusion_emitters": False,
@@ -84,15 +90,18 @@ def programs(t_end: float, width: int) -> dict:
 
 
 def run(quick: bool = False) -> dict:
+    assert set(XLA_DEFAULTS) == set(FAST_COMPILE)
+    jax.config.update("jax_enable_compilation_cache", False)
     t_end, width, rounds, repeats = (0.2, 8, 1, 2) if quick else (3.0, 64, 3, 5)
     compile_s = {}
     run_s = {}
     results = {}
-    for name, (fn, args) in programs(t_end, width).items():
+    compared = programs(t_end, width)
+    for name, (fn, args) in compared.items():
         jitted = jax.jit(fn)
         for _ in range(rounds):
             for label, options in OPTIONS.items():
-                # (JAX keeps compiled programs by their options: none is reused)
+                # (a fresh lowering, with JAX's caches cleared: nothing reused)
                 jax.clear_caches()
                 lowered = jitted.lower(*args)
                 start = time.perf_counter()
@@ -108,7 +117,7 @@ def run(quick: bool = False) -> dict:
                     seconds = time.perf_counter() - start
                     run_s[key] = min(run_s.get(key, np.inf), seconds)
     rows = []
-    for name in programs(t_end, width):
+    for name in compared:
         reference = jax.tree.leaves(results[name, "xla_defaults"])
         for label in OPTIONS:
             leaves = jax.tree.leaves(results[name, label])

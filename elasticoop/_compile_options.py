@@ -13,8 +13,8 @@ JAX accepts compiler options only on the outermost compiled program, so
 transformation. Inside a user's `jit` the function is traced into the user's
 program, which compiles with the user's options; under `vmap` or `grad` alone it
 compiles as `eqx.filter_jit` does, with XLA's defaults. A user's own programs are
-never affected. An XLA that no longer knows the option refuses it at compile time;
-the library then compiles every program with XLA's defaults from there on.
+never affected. An XLA that no longer knows either option refuses it at compile
+time; the library then compiles every program with XLA's defaults from there on.
 """
 
 import functools

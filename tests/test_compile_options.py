@@ -96,7 +96,7 @@ def test_the_fast_compiled_simulation_matches_one_compiled_without_options():
 
 
 def test_the_options_are_passed_on_the_cpu_only(monkeypatch):
-    # (the tests run on the CPU)
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     assert _compile_options.fast_compile_options() == _compile_options.FAST_COMPILE
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert _compile_options.fast_compile_options() == {}
