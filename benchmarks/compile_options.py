@@ -39,13 +39,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import elasticoop as eo  # noqa: E402
-from elasticoop._compile_options import FAST_COMPILE  # noqa: E402
+from elasticoop._compile_options import FAST_COMPILE, XLA_DEFAULTS  # noqa: E402
 
-# XLA's own values of the options `FAST_COMPILE` sets
-XLA_DEFAULTS = {
-    "xla_cpu_use_fusion_emitters": True,
-    "xla_backend_optimization_level": 3,
-}
 OPTIONS = {
     "xla_defaults": XLA_DEFAULTS,
     "fusion_emitters_off": {**XLA_DEFAULTS, "xla_cpu_use_fusion_emitters": False},

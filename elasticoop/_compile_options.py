@@ -32,6 +32,12 @@ FAST_COMPILE: dict[str, str | bool | int] = {
     "xla_cpu_use_fusion_emitters": False,
     "xla_backend_optimization_level": 1,
 }
+# XLA's own values of the options `FAST_COMPILE` sets (what a program gets
+# without them; the tests and `benchmarks/compile_options.py` compare with these).
+XLA_DEFAULTS: dict[str, str | bool | int] = {
+    "xla_cpu_use_fusion_emitters": True,
+    "xla_backend_optimization_level": 3,
+}
 
 # False once XLA has refused the options (see the module's docstring).
 _options_known = [True]
@@ -48,17 +54,12 @@ def fast_compile_jit(fn: _Fn) -> _Fn:
     outside any JAX transformation (and inlined into the caller's program
     otherwise, as `eqx.filter_jit` is)."""
     nested = eqx.filter_jit(fn)
-    # (made at the first call: the backend is not known before)
-    outermost: list[Any] = []
 
+    @functools.cache  # (made at the first call: the backend is not known before)
     def outermost_jit() -> Any:
-        if not outermost:
-            # `filter_jit` passes further keywords on to `jax.jit` (its typed
-            # overloads do not list them).
-            outermost.append(
-                eqx.filter_jit(fn, compiler_options=fast_compile_options())  # type: ignore[call-overload]
-            )
-        return outermost[0]
+        # `filter_jit` passes further keywords on to `jax.jit` (its typed
+        # overloads do not list them).
+        return eqx.filter_jit(fn, compiler_options=fast_compile_options())  # type: ignore[call-overload]
 
     @functools.wraps(fn)
     def call(*args: Any, **kwargs: Any) -> Any:

@@ -10,13 +10,7 @@ from helpers import three_body_model, three_body_state
 import elasticoop as eo
 from elasticoop import _compile_options
 from elasticoop._compat import outside_transformations
-from elasticoop._compile_options import fast_compile_jit
-
-# XLA's own values of the options `FAST_COMPILE` sets
-XLA_DEFAULTS = {
-    "xla_cpu_use_fusion_emitters": True,
-    "xla_backend_optimization_level": 3,
-}
+from elasticoop._compile_options import XLA_DEFAULTS, fast_compile_jit
 
 
 def test_outside_transformations_is_false_under_every_transformation():
