@@ -40,7 +40,11 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   What bounds it: `vmap_field_us` and `vmap_product_us`, the field and its
   product under `vmap` over the 8 sets in compiled loops, and `vmap_field_share`,
   the share of the `vmap`-ped forward run that evaluates the field (the nominal
-  set's steps times the evaluations per step, at `vmap_field_us` each).
+  set's steps times the evaluations per step, at `vmap_field_us` each);
+  `last_axis_field_us` and `last_axis_product_us`, the same loops with the sets
+  as the last axis of the parameters and states instead of the first; and
+  `per_set_us`, the field and its product per set in loops under `vmap` over 1,
+  2, 4, 8 and 16 sets (the batch's time over its sets).
 
 At smoke size (`--quick`): 8 samples, 0.2 s, 11 outputs, one round.
 """
@@ -160,13 +164,16 @@ def vmap_throughput(batch: int, t_end: float, n_out: int, rounds: int, n_scipy: 
     }
 
 
-def product_loops(s, traj, n_evals: int, sets) -> dict:
+def product_loops(s, traj, n_evals: int, sets, lanes=None, widths=()) -> dict:
     """`{name: (fn, args)}`: `n_evals` evaluations of `simulate`'s vector field
     (`field`) and of its vector-Jacobian product in the state and the stiffness and
     damping (`product`), in compiled loops on single states: each at the run's
     middle output, nudged by the previous result (so that nothing is computed once
     outside the loop); `vmap_field` and `vmap_product` the same under `vmap` over
-    the parameter `sets` (a leading axis each)."""
+    the parameter `sets` (a leading axis each), and `last_axis_field` and
+    `last_axis_product` with the sets as the last axis of the parameters and the
+    states instead. For each of `widths`, `lanes{w}_field` and `lanes{w}_product`
+    the same under `vmap` over the first `w` of the parameter sets `lanes`."""
     from gradients import evaluation_loop, field_of_parameters, parameters, product_loop
 
     from elasticoop import _simulate
@@ -180,17 +187,40 @@ def product_loops(s, traj, n_evals: int, sets) -> dict:
         x_bar, acc = carry
         return field(t0 + 1e-12 * acc, x0 + 1e-12 * x_bar, params), acc
 
-    args = (parameters(s.model),)
+    def loops(prefix, sets, width, axis=0):
+        return {
+            f"{prefix}field": (
+                evaluation_loop(evaluate, x0, n_evals, width, axis),
+                (sets,),
+            ),
+            f"{prefix}product": (
+                product_loop(field, t0, x0, x_bar0, n_evals, width, axis),
+                (sets,),
+            ),
+        }
+
     width = sets[0].shape[0]
-    return {
-        "field": (evaluation_loop(evaluate, x0, n_evals), args),
-        "product": (product_loop(field, t0, x0, x_bar0, n_evals), args),
-        "vmap_field": (evaluation_loop(evaluate, x0, n_evals, width), (sets,)),
-        "vmap_product": (product_loop(field, t0, x0, x_bar0, n_evals, width), (sets,)),
-    }
+    last = tuple(jnp.moveaxis(p, 0, -1) for p in sets)
+    calls = loops("", parameters(s.model), None) | loops("vmap_", sets, width)
+    calls |= loops("last_axis_", last, width, -1)
+    for w in widths:
+        calls |= loops(f"lanes{w}_", tuple(p[:w] for p in lanes), w)
+    return calls
 
 
-def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_000):
+def parameter_sets(params, width: int):
+    """`width` sets of the parameters, each scaled by a factor within 5 %."""
+    scale = 1 + 0.05 * jax.random.uniform(jax.random.key(0), (width, 1, 1))
+    return tuple(p[None] * scale for p in params)
+
+
+def gradients(
+    t_index: int | None,
+    width: int,
+    rounds: int,
+    n_evals: int = 20_000,
+    widths: tuple[int, ...] = (1, 2, 4, 8, 16),
+):
     s = eo.default_scenario()
     ts = s.ts if t_index is None else s.ts[:t_index]
     params = (s.model.stiffness, s.model.damping)
@@ -207,8 +237,7 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
     def loss(params):
         return jnp.sum((trajectory(params) - target) ** 2)
 
-    scale = 1 + 0.05 * jax.random.uniform(jax.random.key(0), (width, 1, 1))
-    sets = tuple(p[None] * scale for p in params)
+    sets = parameter_sets(params, width)
     # the gradient's two halves: the forward run that records the steps (the
     # pullback is returned, so that the record is computed), and the backward pass
     record = jax.jit(lambda p: jax.vjp(loss, p))
@@ -235,7 +264,9 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         start = time.perf_counter()
         jax.block_until_ready(fn(*args))
         compile_s[name] = time.perf_counter() - start
-    calls.update(product_loops(s, traj, n_evals, sets))
+    # (and the field and its product per set, by the number of sets `vmap` takes)
+    lanes = parameter_sets(params, max(widths))
+    calls.update(product_loops(s, traj, n_evals, sets, lanes, widths))
     times = interleaved_best_times(calls, rounds)
     stages = eo.SimulationOptions().diffrax_solver().tableau.num_stages
     # the forward run's evaluations of the field: the stages less one a step, the
@@ -265,6 +296,17 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
         "vmap_field_us": 1e6 * times["vmap_field"] / n_evals,
         "vmap_product_us": 1e6 * times["vmap_product"] / n_evals,
         "vmap_product_over_field": times["vmap_product"] / times["vmap_field"],
+        # what a set costs in a batch of w (the time of the batch over w)
+        "per_set_us": {
+            str(w): {
+                part: 1e6 * times[f"lanes{w}_{part}"] / n_evals / w
+                for part in ("field", "product")
+            }
+            for w in widths
+        },
+        # the sets as the last axis of the arrays instead of the first
+        "last_axis_field_us": 1e6 * times["last_axis_field"] / n_evals,
+        "last_axis_product_us": 1e6 * times["last_axis_product"] / n_evals,
         # (the nominal set's steps: each set takes about as many)
         "vmap_field_share": times["vmap_field"]
         / n_evals
@@ -276,7 +318,7 @@ def gradients(t_index: int | None, width: int, rounds: int, n_evals: int = 20_00
 def run(quick: bool = False) -> dict:
     if quick:
         vmap = vmap_throughput(8, 0.2, 11, 1, 2)
-        grad = gradients(11, 2, 1, n_evals=100)
+        grad = gradients(11, 2, 1, n_evals=100, widths=(1, 2))
     else:
         vmap = vmap_throughput(1024, 2.0, 21, 3, 16)
         grad = gradients(None, 8, 5)

@@ -132,13 +132,16 @@ def field_of_parameters(scenario):
     return field
 
 
-def product_loop(field, t0, x0, x_bar0, n_evals: int, width: int | None = None):
+def product_loop(
+    field, t0, x0, x_bar0, n_evals: int, width: int | None = None, axis: int = 0
+):
     """A compiled loop of `n_evals` vector-Jacobian products of `field(t, x,
     params)` in the state and the parameters (two arrays), with the cotangent
     `x_bar0`, at `(t0, x0)` nudged by the previous result (so that nothing is
     computed once outside the loop): a function of the parameters. With `width`,
-    the products of `width` parameter sets (the parameters with a leading axis of
-    that length) under `vmap`, as the adjoint takes them under `vmap`."""
+    the products of `width` parameter sets (the parameters with an axis of that
+    length, leading or `axis`) under `vmap`, as the adjoint takes them under
+    `vmap`."""
 
     def product(params, carry):
         x_bar, acc = carry
@@ -147,20 +150,24 @@ def product_loop(field, t0, x0, x_bar0, n_evals: int, width: int | None = None):
         x_bar, p_bar = pullback(x_bar0)
         return x_bar, acc + jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
 
-    return evaluation_loop(product, x0, n_evals, width)
+    return evaluation_loop(product, x0, n_evals, width, axis)
 
 
-def evaluation_loop(body, x0, n_evals: int, width: int | None = None):
+def evaluation_loop(body, x0, n_evals: int, width: int | None = None, axis: int = 0):
     """`n_evals` calls of `body(params, (x_bar, acc)) -> (x_bar, acc)` in a
     compiled loop, from zeros: a function of the parameters. With `width`, `body`
-    under `vmap` over `width` lanes (parameters, `x_bar` and `acc` each with a
-    leading axis of that length)."""
-    lanes = () if width is None else (width,)
-    step = body if width is None else jax.vmap(body)
+    under `vmap` over `width` lanes (parameters and `x_bar` each with an axis of
+    that length, leading, or the last with `axis=-1`; `acc` `(width,)`)."""
+    if width is None:
+        step, x_shape, acc_shape = body, x0.shape, ()
+    else:
+        step = jax.vmap(body, in_axes=(axis, (axis, 0)), out_axes=(axis, 0))
+        x_shape = (width, *x0.shape) if axis == 0 else (*x0.shape, width)
+        acc_shape = (width,)
 
     @jax.jit
     def run(params):
-        start = (jnp.zeros(lanes + x0.shape), jnp.zeros(lanes))
+        start = (jnp.zeros(x_shape), jnp.zeros(acc_shape))
         return jax.lax.fori_loop(0, n_evals, lambda k, c: step(params, c), start)
 
     return run
