@@ -78,10 +78,6 @@ class Connection(eqx.Module):
         )
 
 
-# The translational entries of a connection's 6-vector $Y_i - Y_j$.
-_TRANSLATION = np.array([True, True, True, False, False, False])
-
-
 def _deflection_scale(sq: Scalar, rest_length: Scalar) -> Scalar:
     """$1 - \\rho_0/|d|$ from $|d|^2$, guarded at $|d| = 0$ (where it is 1)."""
     ok = sq > 0
@@ -101,11 +97,13 @@ def deflection(d: Vector3, rest_length: Scalar) -> Vector3:
 
 def _strain(dy: Vector6, rest_length: Scalar, rest_angles: Vector3) -> Vector6:
     """$(\\delta, \\Delta\\mathcal{A} - \\Delta\\mathcal{A}_0)$ of one connection
-    from $\\Delta Y = Y_i - Y_j$, as one 6-vector (elementwise, with the
-    translational entries masked, so that its derivatives stay elementwise too)."""
-    sq = jnp.sum(jnp.where(_TRANSLATION, dy * dy, 0.0))
-    scale = jnp.where(_TRANSLATION, _deflection_scale(sq, rest_length), 1.0)
-    return scale * dy - jnp.concatenate([jnp.zeros(3, dy.dtype), rest_angles])
+    from $\\Delta Y = Y_i - Y_j$, as one 6-vector: the deflection of the
+    translational part $d$ and the angles' difference, each on its own three
+    entries."""
+    d = dy[:3]
+    return jnp.concatenate(
+        [_deflection_scale(jnp.sum(d * d), rest_length) * d, dy[3:] - rest_angles]
+    )
 
 
 def connection_potential(
