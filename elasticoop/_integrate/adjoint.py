@@ -96,7 +96,7 @@ class StepwiseAdjoint(eqx.Module):
     - Reverse mode only (`jax.grad`, `jax.vjp`); for forward mode (`jax.jacfwd`)
       use `diffrax.ForwardMode()`.
     - Explicit Runge-Kutta solvers whose dense output is built from the stages
-      (Tsit5, the default, Dopri5, Dopri8, Bosh3, Heun, Ralston, Midpoint).
+      (Dopri8, the default, Tsit5, Dopri5, Bosh3, Heun, Ralston, Midpoint).
     - Memory: the start and end time of up to `max_steps` steps, and the start
       states of the first `kept_steps` accepted steps, then of every second step
       of the next `2 kept_steps`, every fourth of the next `4 kept_steps`, and so
