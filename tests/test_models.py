@@ -1,5 +1,7 @@
 """Appendix B's potential and dissipation: invariances, closed forms, linearization."""
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -39,6 +41,29 @@ def test_potential_and_dissipation_invariant_under_common_translation(seed):
     np.testing.assert_allclose(
         model.potential(y + turn), model.potential(y), rtol=1e-13
     )
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_restoring_forces_are_the_gradients_of_potential_and_dissipation(seed):
+    """The forces of the equations of motion, taken through one linearisation of
+    each connection's strain, against autodiff of Pi and R as written, with rest
+    lengths and rest angles set."""
+    rng = np.random.default_rng(seed)
+    model = eqx.tree_at(
+        lambda m: m.rest_angles,
+        three_body_model(),
+        jnp.asarray(0.1 * rng.normal(size=(2, 3))),
+    )
+    assert float(jnp.min(model.rest_length)) > 0
+    y, ydot = _random_state(seed)
+    elastic, damping = model.restoring_forces(y, ydot)
+    for got, want in (
+        (elastic, jax.grad(model.potential)(y)),
+        (damping, jax.grad(model.dissipation, argnums=1)(y, ydot)),
+    ):
+        scale = float(jnp.max(jnp.abs(want)))
+        assert scale > 0
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13 * scale)
 
 
 def test_unloaded_state_has_zero_elastic_force():
