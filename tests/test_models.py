@@ -45,9 +45,9 @@ def test_potential_and_dissipation_invariant_under_common_translation(seed):
 
 @pytest.mark.parametrize("seed", range(2))
 def test_restoring_forces_are_the_gradients_of_potential_and_dissipation(seed):
-    """The forces of the equations of motion, taken through one linearisation of
-    each connection's strain, against autodiff of Pi and R as written, with rest
-    lengths and rest angles set."""
+    """The forces of the equations of motion (per connection, gathered per body)
+    against autodiff of Pi and R of the whole model, with rest lengths and rest
+    angles set."""
     rng = np.random.default_rng(seed)
     model = eqx.tree_at(
         lambda m: m.rest_angles,

@@ -116,7 +116,8 @@ def connection_potential(
     """$\\Pi_{ij} = \\tfrac12\\sum_k c^k \\delta_k^2
     + \\tfrac12\\sum_a c^a (\\Delta\\mathcal{A}_a - \\Delta\\mathcal{A}_{0,a})^2$
     of one connection (`jax.vmap` it for many)."""
-    return _quadratic(stiffness, _strain(yi - yj, rest_length, rest_angles))
+    strain = _strain(yi - yj, rest_length, rest_angles)
+    return 0.5 * jnp.sum(stiffness * strain * strain)
 
 
 def connection_dissipation(
@@ -136,51 +137,7 @@ def connection_dissipation(
     _, rate = jax.jvp(
         lambda dy: _strain(dy, rest_length, rest_angles), (yi - yj,), (vi - vj,)
     )
-    return _quadratic(damping, rate)
-
-
-def _quadratic(weights: Float[Array, " 6"], x: Vector6) -> Scalar:
-    """$\\tfrac12\\sum_k w_k x_k^2$: $\\Pi_{ij}$ of the strain with the
-    stiffnesses, $R_{ij}$ of the strain rate with the dampings."""
-    return 0.5 * jnp.sum(weights * x * x)
-
-
-def connection_forces(
-    stiffness: Float[Array, " 6"],
-    damping: Float[Array, " 6"],
-    rest_length: Scalar,
-    rest_angles: Vector3,
-    yi: Vector6,
-    yj: Vector6,
-    vi: Vector6,
-    vj: Vector6,
-) -> tuple[Vector6, Vector6]:
-    """$(\\partial\\Pi_{ij}/\\partial Y_i, \\partial R_{ij}/\\partial\\dot Y_i)$ of one
-    connection (`jax.vmap` it for many), by the chain rule through one
-    linearisation of the strain $s(\\Delta Y)$ (autodiff: its value, its
-    Jacobian $J$ applied to $\\Delta\\dot Y$, which is the strain rate, and $J^T$):
-
-    $$\\frac{\\partial\\Pi_{ij}}{\\partial Y_i}
-        = J^T\\frac{\\partial\\Pi_{ij}}{\\partial s}, \\qquad
-      \\frac{\\partial R_{ij}}{\\partial\\dot Y_i}
-        = J^T\\frac{\\partial R_{ij}}{\\partial\\dot s},$$
-
-    with $\\partial\\Pi_{ij}/\\partial s$ and $\\partial R_{ij}/\\partial\\dot s$ by
-    autodiff of the energies in the strain and its rate (the same functions as
-    `connection_potential` and `connection_dissipation`); $\\Pi_{ij}$ and $R_{ij}$
-    depend on $Y_i - Y_j$ only, so the second end's are the opposite."""
-    dy = yi - yj
-    strain, pullback = jax.vjp(lambda d: _strain(d, rest_length, rest_angles), dy)
-    _, rate = jax.jvp(lambda d: _strain(d, rest_length, rest_angles), (dy,), (vi - vj,))
-    slopes = jnp.stack(
-        [
-            jax.grad(_quadratic, argnums=1)(stiffness, strain),
-            jax.grad(_quadratic, argnums=1)(damping, rate),
-        ]
-    )
-    # $J^T$ applied to both at once
-    (forces,) = jax.vmap(pullback)(slopes)
-    return forces[0], forces[1]
+    return 0.5 * jnp.sum(damping * rate * rate)
 
 
 def _incidence(
@@ -313,8 +270,7 @@ class MobileModel(AbstractElasticModel):
         `(bodies, 6)`.
 
         Per connection, by autodiff of $\\Pi_{ij}$ and $R_{ij}$ with respect to the
-        first end's coordinates through one linearisation of the connection's
-        strain (`connection_forces`, `vmap` over the connections); both depend on
+        first end's coordinates (`vmap` over the connections); both depend on
         $Y_i - Y_j$ only, so the second end gets the opposite. The per-body sums
         gather each body's connections from the static connectivity (no
         scatter-add in the hot path).
@@ -325,16 +281,8 @@ class MobileModel(AbstractElasticModel):
             return zero, zero
         yi, yj = self._ends(y)
         vi, vj = self._ends(ydot)
-        elastic, damping = jax.vmap(connection_forces)(
-            self.stiffness,
-            self.damping,
-            self.rest_length,
-            self.rest_angles,
-            yi,
-            yj,
-            vi,
-            vj,
-        )
+        elastic = jax.grad(self._potential_of_ends)(yi, yj)
+        damping = jax.grad(self._dissipation_of_ends, argnums=2)(yi, yj, vi, vj)
         index, sign = _incidence(self.connectivity, n)
         pairs = self.pairs
 
