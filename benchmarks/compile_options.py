@@ -31,12 +31,13 @@ import time
 from pathlib import Path
 
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from gradients import with_parameters  # noqa: E402
 
 import elasticoop as eo  # noqa: E402
 from elasticoop._compile_options import FAST_COMPILE, XLA_DEFAULTS  # noqa: E402
@@ -59,9 +60,13 @@ def programs(t_end: float, width: int) -> dict:
     params = (s.model.stiffness, s.model.damping)
 
     def trajectory(params, adjoint=None):
-        model = eqx.tree_at(lambda m: (m.stiffness, m.damping), s.model, params)
         return eo.simulate(
-            model, s.y_init, s.ydot_init, ts, forces=s.forces, adjoint=adjoint
+            with_parameters(s.model, params),
+            s.y_init,
+            s.ydot_init,
+            ts,
+            forces=s.forces,
+            adjoint=adjoint,
         ).y
 
     target = trajectory(params) + 1e-3
