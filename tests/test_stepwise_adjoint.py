@@ -28,9 +28,17 @@ RTOL = 1e-12
 CHECKPOINTS = diffrax.RecursiveCheckpointAdjoint()
 
 
-def loss(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
+def swaying_grasps():
+    mask = np.zeros((3, 6), dtype=bool)
+    mask[1:, :] = True  # the grasps follow a swaying motion
+    amplitude = jnp.zeros((3, 6)).at[1:, 2].set(0.01).at[1:, 4].set(0.02)
+    return eo.PrescribedMotion(mask, Wave(Y0, amplitude))
+
+
+def loss_and_outcome(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
     """Weighted squares of every output (all states, rates, work, dissipation),
-    as a function of stiffness, damping, masses, initial state and forces."""
+    as a function of stiffness, damping, masses, initial state and forces; and the
+    run's outcome: its status, number of steps and which outputs it reached."""
     stiffness, damping, mass, y0, force = params
     model = eqx.tree_at(
         lambda m: (m.stiffness, m.damping, m.bodies.mass),
@@ -52,31 +60,51 @@ def loss(params, adjoint, solver=None, prescribed=None, max_steps=100_000):
     )
     weights = jnp.arange(1.0, 1.0 + TS.shape[0])[:, None, None]
     # (a run that stops early has NaN at the outputs it did not reach)
-    reached = jnp.all(jnp.isfinite(traj.y), axis=(1, 2))[:, None, None]
-    y = jnp.where(reached, traj.y, 0.0)
-    ydot = jnp.where(reached, traj.ydot, 0.0)
-    return (
+    reached = jnp.all(jnp.isfinite(traj.y), axis=(1, 2))
+    y = jnp.where(reached[:, None, None], traj.y, 0.0)
+    ydot = jnp.where(reached[:, None, None], traj.ydot, 0.0)
+    value = (
         jnp.sum(weights * (y - Y0[None]) ** 2)
         + jnp.sum(weights * ydot**2)
-        + jnp.sum(jnp.where(reached[:, 0, 0], traj.work + traj.dissipated, 0.0))
+        + jnp.sum(jnp.where(reached, traj.work + traj.dissipated, 0.0))
     )
+    return value, (traj.status, traj.n_steps, reached)
+
+
+def loss(params, adjoint, **kwargs):
+    """The loss of `loss_and_outcome` alone."""
+    return loss_and_outcome(params, adjoint, **kwargs)[0]
 
 
 PARAMS = (MODEL.stiffness, MODEL.damping, MODEL.bodies.mass, Y0, LIFT)
 
 
-def gradients(**kwargs):
-    """The gradients by both adjoints."""
-    ours = jax.jit(jax.grad(lambda p: loss(p, eo.StepwiseAdjoint(), **kwargs)))
-    theirs = jax.jit(jax.grad(lambda p: loss(p, CHECKPOINTS, **kwargs)))
-    return ours(PARAMS), theirs(PARAMS)
+def gradient(adjoint, **kwargs):
+    """The loss's gradient with respect to the parameters (by `adjoint`), and the
+    outcome of the run differentiated."""
+    return jax.grad(lambda p: loss_and_outcome(p, adjoint, **kwargs), has_aux=True)
 
 
-@functools.cache
-def gradient_at_params(adjoint):
-    """The gradient at `PARAMS` with the default settings, computed once per
-    adjoint for the tests of this file (each compilation takes seconds)."""
-    return jax.jit(jax.grad(lambda p: loss(p, adjoint)))(PARAMS)
+def compiled_gradient(adjoint, solver=None, prescribed=False, max_steps=100_000):
+    """`gradient` jitted, once per adjoint and settings for all the tests of this
+    file (each program takes seconds to compile). `prescribed`: whether the grasps
+    follow `swaying_grasps`."""
+    return _compiled_gradient(adjoint, solver, prescribed, max_steps)
+
+
+@functools.cache  # (its arguments in one form, however they were passed)
+def _compiled_gradient(adjoint, solver, prescribed, max_steps):
+    motion = swaying_grasps() if prescribed else None
+    return jax.jit(
+        gradient(adjoint, solver=solver, prescribed=motion, max_steps=max_steps)
+    )
+
+
+def gradients(**settings):
+    """The gradients at `PARAMS` by both adjoints (each with its run's outcome)."""
+    ours = compiled_gradient(eo.StepwiseAdjoint(), **settings)(PARAMS)
+    theirs = compiled_gradient(CHECKPOINTS, **settings)(PARAMS)
+    return ours, theirs
 
 
 def assert_close(ours, theirs, rtol=RTOL):
@@ -91,8 +119,7 @@ def assert_close(ours, theirs, rtol=RTOL):
 
 @pytest.mark.slow
 def test_equals_diffrax_adjoint_and_central_differences():
-    ours = gradient_at_params(eo.StepwiseAdjoint())
-    theirs = gradient_at_params(CHECKPOINTS)
+    (ours, _), (theirs, _) = gradients()
     assert_close(ours, theirs)
     # and one entry against central differences (the loss's rounding limits it)
     h = 1e-4 * float(MODEL.stiffness[0, 2])
@@ -108,7 +135,8 @@ def test_equals_diffrax_adjoint_and_central_differences():
 )
 def test_other_explicit_solvers(solver):
     """Each solver's own tableau and dense output (Bosh3: cubic Hermite)."""
-    assert_close(*gradients(solver=solver))
+    (ours, _), (theirs, _) = gradients(solver=solver)
+    assert_close(ours, theirs)
 
 
 @pytest.mark.slow
@@ -125,22 +153,16 @@ def test_sampled_force_with_a_jump_time():
         sampled = eqx.tree_at(lambda f: f.F, force, samples)
         return loss((*PARAMS[:4], sampled), adjoint)
 
-    ours = jax.grad(lambda F: of_samples(F, eo.StepwiseAdjoint()))(samples)
-    theirs = jax.grad(lambda F: of_samples(F, CHECKPOINTS))(samples)
+    ours = jax.jit(jax.grad(lambda F: of_samples(F, eo.StepwiseAdjoint())))(samples)
+    theirs = jax.jit(jax.grad(lambda F: of_samples(F, CHECKPOINTS)))(samples)
     gap = float(jnp.max(jnp.abs(ours - theirs)) / jnp.max(jnp.abs(theirs)))
     assert gap < RTOL, gap
 
 
-def swaying_grasps():
-    mask = np.zeros((3, 6), dtype=bool)
-    mask[1:, :] = True  # the grasps follow a swaying motion
-    amplitude = jnp.zeros((3, 6)).at[1:, 2].set(0.01).at[1:, 4].set(0.02)
-    return eo.PrescribedMotion(mask, Wave(Y0, amplitude))
-
-
 @pytest.mark.slow
 def test_prescribed_motion():
-    assert_close(*gradients(prescribed=swaying_grasps()))
+    (ours, _), (theirs, _) = gradients(prescribed=True)
+    assert_close(ours, theirs)
 
 
 @pytest.mark.slow
@@ -149,23 +171,13 @@ def test_run_stopped_before_the_end(prescribed):
     """A run that ends at its step limit: its end state is saved after the
     outputs it reached (the slots after it, inf, have no cotangent; with
     prescribed motion `simulate` evaluates the motion there too), the outputs
-    enter through the steps taken."""
-    motion = swaying_grasps() if prescribed else None
-    ours, theirs = gradients(max_steps=40, prescribed=motion)
+    enter through the steps taken. (The run differentiated is checked to stop at
+    its limit with some but not all outputs reached.)"""
+    (ours, outcome), (theirs, _) = gradients(max_steps=40, prescribed=prescribed)
     assert_close(ours, theirs)
-    traj = eo.simulate(
-        MODEL,
-        Y0,
-        YDOT0,
-        TS,
-        forces=LIFT,
-        options=eo.SimulationOptions("tsit5", max_steps=40, **TOL),
-        throw=False,
-        prescribed=motion,
-    )
-    assert traj.status == eo.Status.MAX_STEPS_REACHED
-    reached = np.all(np.isfinite(np.asarray(traj.y)), axis=(1, 2))
-    assert 1 < reached.sum() < TS.shape[0]
+    status, _, reached = outcome
+    assert status == eo.Status.MAX_STEPS_REACHED
+    assert 1 < int(reached.sum()) < TS.shape[0]
 
 
 def test_unsupported_solver_is_refused():
@@ -190,7 +202,7 @@ def test_output_times_are_not_differentiated():
 
     # (asked for explicitly; the default falls back on diffrax's adjoint)
     with pytest.raises(ValueError, match="output times ts"):
-        jax.grad(final_height)(TS)
+        jax.jit(jax.grad(final_height))(TS)
 
 
 def test_step_layout_keeps_each_kept_step_once():
@@ -226,17 +238,16 @@ def test_kept_steps_is_checked(kept):
 def test_steps_past_the_kept_ones_are_replayed():
     """With `kept_steps=64` the run's steps past the 64th keep every 2nd, 4th and
     8th start state; the backward pass replays the others from them."""
-    options = eo.SimulationOptions("tsit5", **TOL)
-    traj = eo.simulate(MODEL, Y0, YDOT0, TS, forces=LIFT, options=options)
-    assert int(traj.n_steps) > 64 * (2**3 - 1)  # into the fourth level
-    ours = jax.jit(
-        jax.grad(lambda p: loss(p, eo.StepwiseAdjoint(kept_steps=64), max_steps=1000))
-    )(PARAMS)
-    assert_close(ours, gradient_at_params(CHECKPOINTS))
+    adjoint = eo.StepwiseAdjoint(kept_steps=64)
+    ours, (status, n_steps, _) = compiled_gradient(adjoint, max_steps=1000)(PARAMS)
+    assert status == eo.Status.SUCCESS
+    assert int(n_steps) > 64 * (2**3 - 1)  # into the fourth level
+    theirs, _ = gradients()[1]
+    assert_close(ours, theirs)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("max_steps", [1000, 40], ids=["to_the_end", "stopped"])
+@pytest.mark.parametrize("max_steps", [100_000, 40], ids=["to_the_end", "stopped"])
 def test_vmap_of_gradients(max_steps):
     """Under `jax.vmap` the forward half runs in the batch loop, which writes the
     record of the steps in place, and the backward pass loops over blocks of
@@ -247,15 +258,12 @@ def test_vmap_of_gradients(max_steps):
     written by the batch loop after it stopped."""
     stiffness = PARAMS[0][None] * jnp.array([1.0, 1.3, 0.8])[:, None, None]
     in_axes = ((0, None, None, None, None),)
-
-    def gradient(adjoint):
-        return jax.grad(lambda p: loss(p, adjoint, max_steps=max_steps))
-
-    batch = jax.jit(jax.vmap(gradient(eo.StepwiseAdjoint(kept_steps=64)), in_axes))
-    ours = batch((stiffness, *PARAMS[1:]))
-    single = jax.jit(gradient(CHECKPOINTS))
+    adjoint = eo.StepwiseAdjoint(kept_steps=64)
+    batch = jax.jit(jax.vmap(gradient(adjoint, max_steps=max_steps), in_axes))
+    ours, _ = batch((stiffness, *PARAMS[1:]))
+    single = compiled_gradient(CHECKPOINTS, max_steps=max_steps)
     for i in range(stiffness.shape[0]):
-        theirs = single((stiffness[i], *PARAMS[1:]))
+        theirs, _ = single((stiffness[i], *PARAMS[1:]))
         assert_close([g[i] for g in ours], theirs, rtol=1e-9)
 
 
@@ -268,7 +276,7 @@ def test_the_default_adjoint_is_stepwise_with_diffrax_for_the_rest():
 
     def program(adjoint):
         """The gradient's program as lowered for XLA (before compiling it)."""
-        return jax.jit(jax.grad(lambda p: loss(p, adjoint))).lower(PARAMS).as_text()
+        return compiled_gradient(adjoint).lower(PARAMS).as_text()
 
     default = program(None)
     assert default == program(eo.StepwiseAdjoint())
@@ -281,7 +289,8 @@ def test_the_default_adjoint_is_stepwise_with_diffrax_for_the_rest():
         )
         return traj.y[-1, 0, 2]
 
-    ours = jax.grad(final_height)(TS, None)
-    theirs = jax.grad(final_height)(TS, CHECKPOINTS)
+    gradient_of_ts = jax.jit(jax.grad(final_height), static_argnums=1)
+    ours = gradient_of_ts(TS, None)
+    theirs = gradient_of_ts(TS, CHECKPOINTS)
     assert float(jnp.max(jnp.abs(theirs))) > 0
     np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-15)
