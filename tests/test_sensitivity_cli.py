@@ -241,18 +241,20 @@ def test_morris_screening_from_a_study_file_and_again_from_its_store(tmp_path, c
     xr.testing.assert_identical(again, effects)
 
 
-@pytest.mark.slow  # ~60 s on 2 shared cores: compiles the box's study, derivatives
+@pytest.mark.slow  # compiles the derivatives (and the box's study when run alone)
 def test_dgsm_from_a_study_file_bounds_what_drives_and_zeroes_what_does_not(
     tmp_path, capsys
 ):
-    study = _box_study(tmp_path, "dgsm", 8)
+    # 16 points: as many runs as the Morris screening's above, so that this study
+    # runs the programs that one compiled (the command line keeps them on disk)
+    study = _box_study(tmp_path, "dgsm", 16)
     store = tmp_path / "dgsm"
     code = main(["montecarlo", "sensitivity", str(study), "-o", str(store)])
     out, err = capsys.readouterr()
     assert code == 0, err
-    assert "derivative-based measures at 8 points" in out
+    assert "derivative-based measures at 16 points" in out
     ds = _check_closed_form(store)
-    assert ds.sizes["sample"] == 8
+    assert ds.sizes["sample"] == 16
     folder = store / "sensitivity"
     measures = xr.load_dataset(folder / "dgsm.nc", engine="h5netcdf")
     assert list(measures["factor"].values) == FACTORS
