@@ -135,6 +135,24 @@ MASS = mc.Uniform(1.5, 2.5)  # the object's mass [kg]
 LOG_STD = 0.3  # the z stiffness of grasp 1 is k0 exp(0.3 Z)
 
 
+def _stiffness(m):
+    return m.stiffness
+
+
+def _masses(m):
+    return m.bodies.mass
+
+
+def _sag(traj):
+    return traj.model.bodies.mass[0] * G / traj.model.stiffness[0, 2]
+
+
+# The static deflection study is run at this chunk size and batch width by both
+# tests that run it, and its callables are module functions, so that the same
+# number of samples is one compiled program for both.
+CHUNK, WIDTH = 192, 64
+
+
 def _deflection_study(n_base, sampling="saltelli"):
     """The static deflection m g / k of the object on the z spring of grasp 1,
     of mass ~ U(1.5, 2.5) and stiffness ~ k0 LogNormal(0, 0.3) (a closed form of
@@ -147,18 +165,13 @@ def _deflection_study(n_base, sampling="saltelli"):
     params = [
         mc.Parameter(
             "stiffness",
-            lambda m: m.stiffness,
+            _stiffness,
             mc.LogNormal(np.zeros((2, 6)), spread),
             relative=True,
         ),
-        mc.Parameter("mass", lambda m: m.bodies.mass, mc.Uniform(mass_low, mass_high)),
+        mc.Parameter("mass", _masses, mc.Uniform(mass_low, mass_high)),
     ]
-    outputs = {
-        "sag": mc.Output(
-            lambda traj: traj.model.bodies.mass[0] * G / traj.model.stiffness[0, 2]
-        ),
-        "deflection": mc.max_deflection(),
-    }
+    outputs = {"sag": mc.Output(_sag), "deflection": mc.max_deflection()}
     return mc.Study(
         three_body_model(),
         y0,
@@ -189,7 +202,7 @@ def _deflection_truth():
 def test_static_deflection_indices_through_run_study_and_dgsm_bound():
     study = _deflection_study(256)
     assert study.n_samples == 256 * 4  # two varying factors: D + 2 = 4 rows
-    results = mc.run_study(study, batch_width=64, progress=False)
+    results = mc.run_study(study, chunk_size=CHUNK, batch_width=WIDTH, progress=False)
     ind = mc.sobol_indices(results, "sag")
     assert list(ind["factor"].values) == ["stiffness[0, 2]", "mass[0]"]
     s1, st = _deflection_truth()
@@ -223,27 +236,32 @@ def test_designs_refuse_sample_counts_they_cannot_have():
 
 @pytest.mark.slow  # ~60 s on 2 shared cores: compiles two studies
 def test_a_stored_study_extends_with_more_samples_keeping_its_chunks(tmp_path):
+    # the larger study is that of the test above (the same program)
     store = tmp_path / "store"
     small = mc.run_study(
-        _deflection_study(16), store, chunk_size=24, batch_width=8, progress=False
+        _deflection_study(128),
+        store,
+        chunk_size=CHUNK,
+        batch_width=WIDTH,
+        progress=False,
     )
-    assert small.sizes["sample"] == 64  # chunks 0, 1 full; chunk 2 holds 16
+    assert small.sizes["sample"] == 512  # chunks 0, 1 full; chunk 2 holds 128
     done: list[int] = []
     large = mc.run_study(
-        _deflection_study(32),
+        _deflection_study(256),
         store,
-        batch_width=8,
+        batch_width=WIDTH,
         progress=False,
         on_chunk=done.append,
     )
     assert done == [2, 3, 4, 5]  # the short last chunk again, then the new ones
-    assert large.sizes["sample"] == 128
+    assert large.sizes["sample"] == 1024
     for name in ("stiffness", "mass", "sag", "status"):
-        np.testing.assert_array_equal(large[name].values[:64], small[name].values)
+        np.testing.assert_array_equal(large[name].values[:512], small[name].values)
     ind = mc.sobol_indices(large, "sag")
-    assert ind.attrs["base_samples"] == 32
+    assert ind.attrs["base_samples"] == 256
     with pytest.raises(mc.StoreError, match="holds another study"):
-        mc.run_study(_deflection_study(16), store, batch_width=8, progress=False)
+        mc.run_study(_deflection_study(128), store, batch_width=WIDTH, progress=False)
 
 
 def test_plots_of_the_indices(ishigami):
