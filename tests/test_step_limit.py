@@ -41,7 +41,8 @@ def assert_same_run(a, b):
 
 
 def test_a_step_limit_stops_a_run_as_max_steps_does():
-    steps = int(capped(OPTIONS.max_steps).n_steps)
+    # the steps the run needs, under the options' own max_steps as the limit
+    steps = int(limited(Y0, jnp.asarray(OPTIONS.max_steps)).n_steps)
     assert steps > 20
     # below the steps the run needs it stops early; at or above them it ends
     for limit, status in [
