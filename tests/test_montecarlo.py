@@ -1,7 +1,6 @@
 """Monte Carlo studies: sampling, batched runs against single runs, statistics, the
 store, failures and sensitivities."""
 
-import functools
 import json
 import re
 
@@ -360,49 +359,18 @@ def test_failing_samples_are_counted_and_others_unaffected(results):
     np.testing.assert_array_equal(conservative["probability"], 1.0)
 
 
-# The draws no constructor accepts and the finite differences are checked on one
-# study (the same parameters, outputs, output times and solver), so that the two
-# tests share its compiled programs: the batch, the sampling, the Jacobians and a
-# single run. Its laws are wide enough that some samples draw a negative mass or
-# stiffness; its tolerances are those the finite differences need (FD_STEP).
-TIGHT = eo.SimulationOptions(rtol=1e-12, atol=1e-14)
-
-
-@functools.cache
-def _wide_study():
+@pytest.mark.slow
+def test_draws_no_constructor_accepts_are_invalid_samples():
+    """A negative mass or a negative stiffness drawn is not simulated (it ran, and
+    counted as a success): `INVALID_SAMPLE`, NaN outputs, the values drawn kept,
+    and the other samples as in a study of their values alone."""
     params = [
         mc.Parameter("mass", lambda m: m.bodies.mass, mc.Normal((2.0, 0.3, 0.25), 0.2)),
         mc.Parameter(
             "stiffness", lambda m: m.stiffness, mc.Normal(1.0, 0.6), relative=True
         ),
     ]
-    return _study(params, n_samples=16, options=TIGHT)
-
-
-@functools.cache
-def _single_run_outputs():
-    """The outputs of `_wide_study` from one `simulate` run of the nominal
-    inputs with the stiffnesses and masses given (the leaves' values), jitted
-    once."""
-    model, y0 = three_body_model(), three_body_state()
-
-    @jax.jit
-    def outputs(k, mass):
-        m = eqx.tree_at(lambda m: (m.stiffness, m.bodies.mass), model, (k, mass))
-        traj = eo.simulate(
-            m, y0, jnp.zeros_like(y0), TS, forces=_lift(), options=TIGHT, throw=False
-        )
-        return {name: out(traj) for name, out in _outputs().items()}
-
-    return outputs
-
-
-@pytest.mark.slow
-def test_draws_no_constructor_accepts_are_invalid_samples():
-    """A negative mass or a negative stiffness drawn is not simulated (it ran, and
-    counted as a success): `INVALID_SAMPLE`, NaN outputs, the values drawn kept,
-    and the other samples as in a study of their values alone."""
-    study = _wide_study()
+    study = _study(params, n_samples=16)
     ds = mc.run_study(study, batch_width=BATCH_WIDTH, progress=False)
     mass, stiffness = ds["mass"].values, ds["stiffness"].values
     bad = np.any(mass <= 0, axis=1) | np.any(stiffness < 0, axis=(1, 2))
@@ -422,9 +390,15 @@ def test_draws_no_constructor_accepts_are_invalid_samples():
     np.testing.assert_allclose(stiffness, drawn["stiffness"], rtol=1e-14)
     # a valid sample is what `simulate` gives for its values
     k = int(np.flatnonzero(~bad)[0])
-    single = _single_run_outputs()(jnp.asarray(stiffness[k]), jnp.asarray(mass[k]))
+    model = eqx.tree_at(
+        lambda m: (m.bodies.mass, m.stiffness),
+        three_body_model(),
+        (jnp.asarray(mass[k]), jnp.asarray(stiffness[k])),
+    )
+    y0 = three_body_state()
+    traj = eo.simulate(model, y0, jnp.zeros_like(y0), TS, forces=_lift())
     np.testing.assert_allclose(
-        ds["peak_force"].values[k], single["peak_force"], rtol=1e-12
+        ds["peak_force"].values[k], mc.peak_elastic_force()(traj), rtol=1e-12
     )
 
 
@@ -457,18 +431,50 @@ def test_a_lift_drawn_without_duration_is_an_invalid_sample():
 
 @pytest.mark.slow
 def test_sensitivities_match_finite_differences():
-    study = _wide_study()
-    values = mc.sample_parameters(study)
-    # two samples of positive masses and stiffnesses
-    mass, stiffness = values["mass"], values["stiffness"]
-    ok = np.all(mass > 0, axis=1) & np.all(stiffness >= 0, axis=(1, 2))
-    pair = np.flatnonzero(ok)[:2]
-    sens = mc.local_sensitivities(study, indices=pair, batch_width=2)
+    params = [
+        mc.Parameter(
+            "stiffness", lambda m: m.stiffness, mc.LogNormal(0.0, 0.2), relative=True
+        ),
+        mc.Parameter(
+            "mass", lambda m: m.bodies.mass, mc.Normal((2.0, 0.3, 0.25), 0.02)
+        ),
+    ]
+    y0 = three_body_state()
+    study = mc.Study(
+        three_body_model(),
+        y0,
+        np.zeros_like(y0),
+        np.linspace(0.0, 0.2, 5),
+        forces=_lift(),
+        parameters=params,
+        outputs={"error": mc.final_pose_error(), "deflection": mc.max_deflection()},
+        n_samples=2,
+        key=3,
+        options=eo.SimulationOptions(rtol=1e-12, atol=1e-14),
+    )
+    sens = mc.local_sensitivities(study, batch_width=2)
     assert sens.sizes["sample"] == 2
-    outputs = _single_run_outputs()
+    values = mc.sample_parameters(study)
+
+    @jax.jit
+    def outputs(k, mass):
+        inputs = eqx.tree_at(
+            lambda i: (i.model.stiffness, i.model.bodies.mass), study.inputs, (k, mass)
+        )
+        traj = eo.simulate(
+            inputs.model,
+            inputs.y_init,
+            inputs.ydot_init,
+            study.ts,
+            forces=inputs.forces,
+            rtol=1e-12,
+            atol=1e-14,
+            throw=False,
+        )
+        return {name: out(traj) for name, out in study.outputs.items()}
 
     s = 1
-    theta = {k: jnp.asarray(v[pair[s]]) for k, v in values.items()}
+    theta = {k: jnp.asarray(v[s]) for k, v in values.items()}
     for p_name in ("stiffness", "mass"):
         flat = theta[p_name].reshape(-1)
         # every mass, and the six stiffness entries of connection 0
