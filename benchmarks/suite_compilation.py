@@ -16,6 +16,12 @@ time only; a program that the command line's compilation cache loads is logged
 (and counted) as a compilation; what is compiled while collecting the tests
 counts towards the share but not the tests' time. Not part of `run.py`: it times
 the tests, not the library.
+
+It also counts, per process, the distinct calls of `simulate`'s compiled program
+(`_solve`: the structure, shapes, dtypes and static values of its arguments), and
+how many stay distinct when a static setting is left out of the count (the
+tolerances and thresholds, the number of output times, `max_steps`, or all of
+them): the programs that taking such a setting as a run-time value would merge.
 """
 
 import collections
@@ -47,6 +53,56 @@ _KINDS = {
 
 _current = ["(collection)"]
 _out: list = []
+# `_solve`'s positional arguments left out of each count (see the docstring)
+_SETTINGS = {
+    "nothing": (),
+    "tolerances": (6, 7, 11, 12),  # rtol, atol, gimbal_tol, link_tol
+    "output times": (3,),  # ts
+    "max_steps": (8,),
+    "all of these": (3, 6, 7, 8, 11, 12),
+}
+_signatures: dict[str, set] = {name: set() for name in _SETTINGS}
+
+
+def _signature(args: tuple, left_out: tuple) -> str:
+    import jax
+
+    def leaf(x):
+        if hasattr(x, "shape") and hasattr(x, "dtype"):
+            return (type(x).__name__, tuple(x.shape), str(x.dtype))
+        if isinstance(x, (int, float, bool, str, type(None))):
+            return repr(x)
+        return type(x).__name__
+
+    return repr(
+        [
+            None
+            if i in left_out
+            else (str(jax.tree.structure(a)), [leaf(x) for x in jax.tree.leaves(a)])
+            for i, a in enumerate(args)
+        ]
+    )
+
+
+def _count_solve_calls(folder: str, worker: str) -> None:
+    import atexit
+
+    import elasticoop._simulate as simulate_module
+
+    solve = simulate_module._solve
+
+    def counted(*args, **kwargs):
+        for name, left_out in _SETTINGS.items():
+            _signatures[name].add(_signature(args, left_out))
+        return solve(*args, **kwargs)
+
+    simulate_module._solve = counted
+
+    def write() -> None:
+        counts = {name: len(found) for name, found in _signatures.items()}
+        (Path(folder) / f"{worker}.solve.json").write_text(json.dumps(counts))
+
+    atexit.register(write)
 
 
 class _Handler(logging.Handler):
@@ -69,6 +125,7 @@ def pytest_configure(config) -> None:
     jax.config.update("jax_log_compiles", True)
     # one handler, on the parent of JAX's loggers (the records propagate to it)
     logging.getLogger("jax").addHandler(_Handler())
+    _count_solve_calls(folder, worker)
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -111,6 +168,9 @@ def summarise(folder: Path) -> dict:
             if kind == "compilation":
                 programs[program][0] += 1
                 programs[program][1] += value
+    solve_calls: collections.Counter = collections.Counter()
+    for path in sorted(folder.glob("*.solve.json")):
+        solve_calls.update(json.loads(path.read_text()))
     total = sum(wall.values())
     by_file = sorted(files.items(), key=lambda item: -item[1]["wall"])
     by_program = sorted(programs.items(), key=lambda item: -item[1][1])
@@ -120,6 +180,7 @@ def summarise(folder: Path) -> dict:
         "compile_share": sum(kinds.values()) / total if total else float("nan"),
         "files": {f: dict(c) for f, c in by_file},
         "programs": {p: {"compiled": n, "s": s} for p, (n, s) in by_program},
+        "solve_calls_distinct_by": dict(solve_calls),
     }
 
 
@@ -158,6 +219,9 @@ def main(argv: list[str]) -> None:
     print(f"\n{'program':40s} {'compiled':>8s} {'XLA s':>7s}")
     for program, p in list(result["programs"].items())[:15]:
         print(f"{program:40s} {p['compiled']:8d} {p['s']:7.1f}")
+    print("\ndistinct calls of simulate's program (_solve), the setting left out:")
+    for name, n in result["solve_calls_distinct_by"].items():
+        print(f"  {name:16s} {n:5d}")
     if json_path:
         Path(json_path).write_text(json.dumps(result, indent=2))
     sys.exit(done.returncode)
