@@ -234,7 +234,7 @@ def test_designs_refuse_sample_counts_they_cannot_have():
         mc.sobol_indices(_results("lhs", np.ones((4, 1)), {"y": np.ones(4)}))
 
 
-@pytest.mark.slow  # ~60 s on 2 shared cores: compiles two studies
+@pytest.mark.slow  # two runs of the deflection study's program (the test above's)
 def test_a_stored_study_extends_with_more_samples_keeping_its_chunks(tmp_path):
     # the larger study is that of the test above (the same program)
     store = tmp_path / "store"
