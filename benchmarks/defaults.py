@@ -34,6 +34,12 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   evaluations of the field (steps times the evaluations per step: the stages less
   one, the last stage of a step being the first of the next, 13 for Dopri8): a
   product, its replayed evaluation and their share of the loops around them.
+  And the backward pass in place, taken apart (`backward_parts`): traced again
+  with the stages' products replaced by a stand-in that costs nothing
+  (`backward_no_products_over_forward`), and with the replay of the stages too
+  (`backward_no_products_no_replay_over_forward`: the loops and the outputs'
+  shares alone); the differences are what the products and the replay cost
+  where they run.
 - `vmap_grad`: the same gradient `vmap`-ped over 8 parameter sets against the
   `vmap`-ped forward run (both at the defaults: the forward run in the batch loop),
   and its two halves alone (`vmap_record`, `vmap_backward`).
@@ -42,7 +48,9 @@ Three measurements, each ratio from calls timed in turn in one process (best of
   the share of the `vmap`-ped forward run that evaluates the field (the nominal
   set's steps times the evaluations per step, at `vmap_field_us` each);
   `last_axis_field_us` and `last_axis_product_us`, the same loops with the sets
-  as the last axis of the parameters and states instead of the first; and
+  as the last axis of the parameters and states instead of the first; the same
+  parts of the backward pass as above (`vmap_backward_no_products_over_vmap_forward`,
+  `vmap_backward_no_products_no_replay_over_vmap_forward`); and
   `per_set_us`, the field and its product per set in loops under `vmap` over 1,
   2, 4, 8 and 16 sets (the batch's time over its sets).
 
@@ -214,6 +222,63 @@ def parameter_sets(params, width: int):
     return tuple(p[None] * scale for p in params)
 
 
+def _free_product(field, h, t, x, k_bar, d, p_bar):
+    """A stand-in for `adjoint.stage_product` that costs nothing: the cotangents
+    scaled (values wrong, timed only; they still depend on the stage, so that
+    nothing is left out of the compiled backward pass)."""
+    total = jnp.sum(k_bar)
+    return 1e-3 * k_bar + 1e-9 * x, jax.tree.map(lambda p: p + 1e-12 * total, p_bar)
+
+
+def _free_replay(tableau, field, t0, t1, y0, f0, k_buffer, **_):
+    """A stand-in for the replay's Runge-Kutta step (`adjoint.explicit_step`) that
+    evaluates nothing: every stage's input is the step's start (values wrong)."""
+    from elasticoop._integrate.rk_step import BatchStep
+
+    inputs = jnp.broadcast_to(y0[None], (tableau.num_stages, *y0.shape))
+    return BatchStep(y0, None, k_buffer, None, inputs)
+
+
+def _unchanged(fn):
+    return fn
+
+
+def backward_parts(loss, params, sets) -> dict:
+    """`{name: (fn, args)}`: the backward passes of the gradient (`backward_...`)
+    and of its `vmap` (`vmap_backward_...`) with the stages' vector-Jacobian
+    products replaced by a stand-in that costs nothing (`no_products`), and with
+    the replay of the stages' inputs replaced too (`no_products_no_replay`): what
+    the backward pass costs beyond its products, and beyond both. Each is traced
+    and compiled with the stand-ins in place of the adjoint's own functions, after
+    JAX's caches are cleared (so that no earlier trace is reused), and they are
+    cleared again afterwards."""
+    from unittest import mock
+
+    from elasticoop._integrate import adjoint
+
+    variants = {
+        "no_products": {"stage_product": _free_product},
+        "no_products_no_replay": {
+            "stage_product": _free_product,
+            "explicit_step": _free_replay,
+        },
+    }
+    calls = {}
+    for name, stand_ins in variants.items():
+        jax.clear_caches()
+        with mock.patch.multiple(adjoint, **stand_ins):
+            for prefix, args, transform in (
+                ("", params, _unchanged),
+                ("vmap_", sets, jax.vmap),
+            ):
+                _, pullback = jax.jit(transform(lambda p: jax.vjp(loss, p)))(args)
+                backward = jax.jit(transform(lambda pull: pull(jnp.ones(()))))
+                backward = backward.lower(pullback).compile()
+                calls[f"{prefix}backward_{name}"] = (backward, (pullback,))
+    jax.clear_caches()
+    return calls
+
+
 def gradients(
     t_index: int | None,
     width: int,
@@ -267,6 +332,7 @@ def gradients(
     # (and the field and its product per set, by the number of sets `vmap` takes)
     lanes = parameter_sets(params, max(widths))
     calls.update(product_loops(s, traj, n_evals, sets, lanes, widths))
+    calls.update(backward_parts(loss, params, sets))
     times = interleaved_best_times(calls, rounds)
     stages = eo.SimulationOptions().diffrax_solver().tableau.num_stages
     # the forward run's evaluations of the field: the stages less one a step, the
@@ -296,6 +362,16 @@ def gradients(
         "vmap_field_us": 1e6 * times["vmap_field"] / n_evals,
         "vmap_product_us": 1e6 * times["vmap_product"] / n_evals,
         "vmap_product_over_field": times["vmap_product"] / times["vmap_field"],
+        # the backward passes with the products, and the replay, left out
+        # (`backward_parts`), in forward runs
+        **{
+            f"{prefix}backward_{part}_over_{prefix}forward": times[
+                f"{prefix}backward_{part}"
+            ]
+            / times[f"{prefix}forward"]
+            for prefix in ("", "vmap_")
+            for part in ("no_products", "no_products_no_replay")
+        },
         # what a set costs in a batch of w (the time of the batch over w)
         "per_set_us": {
             str(w): {

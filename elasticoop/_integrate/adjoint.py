@@ -66,6 +66,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from .._compat import dense_stages
 from .recorder import AcceptedSteps, StepLayout
@@ -265,9 +266,7 @@ def stepwise_solve(
             times = stage_time(t0, t1, jnp.asarray(c, h.dtype))
 
             def product(t, x, k_bar, d, p_bar):
-                _, pullback = jax.vjp(lambda y, d: f(t, y, d), x, d)
-                stage_bar, d_bar = pullback(h * k_bar)
-                return stage_bar, jax.tree.map(jnp.add, p_bar, d_bar)
+                return stage_product(f, h, t, x, k_bar, d, p_bar)
 
             def no_product(t, x, k_bar, d, p_bar):
                 return jnp.zeros_like(k_bar), p_bar
@@ -498,6 +497,19 @@ def stepwise_solve(
         )
 
     return solve(arrays)
+
+
+def stage_product(
+    field: Callable, h: Array, t: Array, x: Array, k_bar: Array, d: Any, p_bar: Any
+) -> tuple[Array, Any]:
+    """One stage's vector-Jacobian product: $(\\bar X_i, \\bar p + \\bar p_i)$
+    with $(\\bar X_i, \\bar p_i) = h\\,\\bar K_i^T \\partial f/\\partial (X, p)$
+    at the stage's time `t` and input `x` (`k_bar`: $\\bar K_i$), by autodiff of
+    `field(t, x, d)` in `x` and the differentiated arrays `d`; `p_bar`: the
+    cotangents of `d` so far."""
+    _, pullback = jax.vjp(lambda y, d: field(t, y, d), x, d)
+    stage_bar, d_bar = pullback(h * k_bar)
+    return stage_bar, jax.tree.map(jnp.add, p_bar, d_bar)
 
 
 def _vmap_as(fn: Callable, batched_fn: Callable) -> Callable:
