@@ -1,0 +1,235 @@
+"""Where the vector-Jacobian product of `simulate`'s vector field spends its time.
+
+    python benchmarks/product_parts.py [--quick] [--json out.json]
+    taskset -c 0 python benchmarks/product_parts.py     # on one core
+
+The reverse-mode gradient of `simulate` spends most of its time in the products of
+its vector field, one per stage of each step (`benchmarks/defaults.py`). Here the
+field is rebuilt from the library's own pieces in three parts: the restoring forces
+(the model's `restoring_forces`, elastic and damping), the inertial part (the mass
+blocks, the velocity terms and the block solve, as `accelerations` assembles them)
+and the applied force. The rebuilt field is checked first against the library's
+(its value and its product, to a relative 1e-13, `check`; an error otherwise), so
+that the parts timed are the library's. Then each part in turn is left out:
+replaced by a stand-in that costs next to nothing but keeps the dependences (the
+restoring forces by `1e-3 (Y + Y')` times the sum of two parameters, the inertial
+part by the right-hand side over the bodies' masses, the applied force by zeros
+plus `1e-3 t`).
+
+Each variant (`library`, `rebuilt`, `without_<part>`) is timed as the field alone
+and as its product in the state and the 24 stiffness and damping parameters, each
+`n_evals` times in a compiled loop on single states (`field_us`, `product_us`: per
+call), at the middle output of a run of `default_scenario()` (3 bodies, 2
+connections), nudged by the previous result, as `defaults.py` times the library's:
+`single` for the scenario's parameters, `vmap` under `vmap` over 8 parameter sets
+(all 8 per call). The loops are timed in turn, best of `rounds` rounds.
+`field_ops` and `product_ops`: the operations of each compiled loop that XLA's CPU
+runtime runs one after the other (the fusions and other instructions of the entry
+computation and of the loop's body, less those that move no data).
+
+Reading the results: a part's cost (`cost_in_field_us`, `cost_in_product_us`) is
+the library's time less the time without it; its cost in the product over its cost
+in the field, against the library's `product_over_field`, says whether the part
+makes the product dearer than the field or cheaper. The costs of the three parts
+need not add up to the whole (leaving a part out also changes what XLA fuses
+around it), and the `rebuilt` row shows how far the rebuilt field's own times stand
+from the library's.
+
+At smoke size (`--quick`): 100 evaluations per loop, one round.
+"""
+
+import re
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _timing import interleaved_best_times  # noqa: E402
+from defaults import parameter_sets  # noqa: E402
+from gradients import (  # noqa: E402
+    evaluation_loop,
+    field_of_parameters,
+    max_rel_diff,
+    parameters,
+    product_loop,
+    with_parameters,
+)
+
+import elasticoop as eo  # noqa: E402
+from elasticoop import _lagrange, _simulate  # noqa: E402
+from elasticoop._forces import check_force  # noqa: E402
+from elasticoop._mass_blocks import FactoredMassBlocks  # noqa: E402
+
+PARTS = ("restoring", "inertial", "applied")
+WIDTH = 8  # parameter sets under `vmap`
+
+
+def inertial_accelerations(model, y, ydot, rhs):
+    """Y'' from the right-hand side `rhs` = G + F - elastic - damping `(bodies, 6)`:
+    the mass blocks, the velocity terms and the block solve of `_lagrange`."""
+    q, v = _lagrange._coordinates(y), _lagrange._coordinates(ydot)
+    inertia = model.bodies.inertia
+    blocks = FactoredMassBlocks(
+        model.bodies.mass,
+        (inertia[:, 0], inertia[:, 1], inertia[:, 2]),
+        model.rotation.angular_velocity_rows(q[3:6]),
+    )
+    c = _lagrange._structured_velocity_terms(model, blocks, q, v)
+    return jnp.stack(blocks.solve(tuple(rhs[:, k] - c[k] for k in range(6))), -1)
+
+
+def rebuilt(scenario, restoring=True, inertial=True, applied=True):
+    """`field_of_parameters(scenario)` rebuilt from the library's pieces, each of
+    the three parts the library's (true) or a stand-in (false)."""
+    s = scenario
+    force = check_force(s.forces, s.y_init, s.ydot_init, s.ts)
+
+    def field(t, x, params):
+        model = with_parameters(s.model, params)
+        y, ydot, _, _ = _simulate._unpack(x)
+        if applied:
+            f = _simulate._applied(model, force, t, y, ydot)
+        else:
+            f = jnp.zeros_like(y) + 1e-3 * t
+        if restoring:
+            elastic, damping = model.restoring_forces(y, ydot)
+        else:
+            elastic = damping = 1e-3 * (y + ydot) * (params[0][0, 0] + params[1][0, 0])
+        rhs = model.gravity_forces() + f - elastic - damping
+        if inertial:
+            yddot = inertial_accelerations(model, y, ydot, rhs)
+        else:
+            yddot = rhs / model.bodies.mass[:, None]
+        return _simulate._pack(ydot, yddot, jnp.sum(f * ydot), jnp.sum(damping * ydot))
+
+    return field
+
+
+def check_rebuilt(library, field, t0, x0, x_bar0, params) -> dict:
+    """The rebuilt field's value and product against the library's: the largest
+    relative differences; an error above 1e-13."""
+
+    def value_and_product(f):
+        value, pullback = jax.vjp(lambda x, p: f(t0, x, p), x0, params)
+        return value, jax.tree.leaves(pullback(x_bar0))
+
+    a, da = jax.jit(lambda: value_and_product(library))()
+    b, db = jax.jit(lambda: value_and_product(field))()
+    diffs = {
+        "field_max_rel_diff": max_rel_diff(b, a),
+        "product_max_rel_diff": max(map(max_rel_diff, db, da)),
+    }
+    if max(diffs.values()) > 1e-13:
+        raise RuntimeError(f"the rebuilt field is not the library's: {diffs}")
+    return diffs
+
+
+_CALLS = re.compile(
+    r"\b(body|condition|branch_computations|true_computation|false_computation"
+    r"|to_apply)=(\{[^}]*\}|%?[\w.\-]+)"
+)
+_COMPUTATION = re.compile(r"^(ENTRY )?%(\S+) .*\{\s*$")
+_INSTRUCTION = re.compile(r"^\s+(?:ROOT )?%\S+ = .+? ([a-z][\w\-]*)\((.*)$")
+_FREE = {"parameter", "constant", "get-tuple-element", "tuple", "bitcast", "after-all"}
+
+
+def operations(compiled) -> int:
+    """The operations XLA's CPU runtime runs one by one in a compiled function:
+    the instructions of the entry computation and of the computations it reaches
+    through loops, conditionals and calls (a fusion is one), less those that
+    move no data (parameters, constants, tuples, bitcasts)."""
+    computations, entry, current = {}, None, None
+    for line in compiled.as_text().splitlines():
+        if head := _COMPUTATION.match(line):
+            current = head.group(2)
+            computations[current] = []
+            entry = current if head.group(1) else entry
+        elif line.startswith("}"):
+            current = None
+        elif current and (instruction := _INSTRUCTION.match(line)):
+            computations[current].append(instruction.groups())
+    count, todo, seen = 0, [entry], set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        for op, rest in computations[name]:
+            count += op not in _FREE
+            if op == "fusion":
+                continue
+            for key, called in _CALLS.findall(rest):
+                if key != "to_apply" or op == "call":
+                    todo += [c.strip(" %") for c in called.strip("{}").split(",")]
+    return count
+
+
+def run(quick: bool = False) -> dict:
+    n_evals, rounds = (100, 1) if quick else (5000, 15)
+    s = eo.default_scenario()
+    traj = eo.simulate(s.model, s.y_init, s.ydot_init, s.ts, forces=s.forces)
+    states = jax.vmap(_simulate._pack)(traj.y, traj.ydot, traj.work, traj.dissipated)
+    middle = states.shape[0] // 2
+    t0, x0, x_bar0 = traj.ts[middle], states[middle], states[middle + 1]
+    params = parameters(s.model)
+    sets = parameter_sets(params, WIDTH)
+
+    library = field_of_parameters(s)
+    fields = {"library": library, "rebuilt": rebuilt(s)}
+    fields |= {f"without_{p}": rebuilt(s, **{p: False}) for p in PARTS}
+    check = check_rebuilt(library, fields["rebuilt"], t0, x0, x_bar0, params)
+
+    calls, ops = {}, {}
+    for tag, width, args in (("single", None, params), ("vmap", WIDTH, sets)):
+        for name, field in fields.items():
+
+            def evaluate(params, carry, field=field):
+                x_bar, acc = carry
+                return field(t0 + 1e-12 * acc, x0 + 1e-12 * x_bar, params), acc
+
+            loops = {
+                "field": evaluation_loop(evaluate, x0, n_evals, width),
+                "product": product_loop(field, t0, x0, x_bar0, n_evals, width),
+            }
+            for kind, loop in loops.items():
+                calls[tag, name, kind] = (loop, (args,))
+                ops[tag, name, kind] = operations(loop.lower(args).compile())
+    times = interleaved_best_times(calls, rounds)
+    us = {key: 1e6 * t / n_evals for key, t in times.items()}
+
+    def rows(tag):
+        out = []
+        for name in fields:
+            field_us, product_us = us[tag, name, "field"], us[tag, name, "product"]
+            row = {
+                "variant": name,
+                "field_us": field_us,
+                "product_us": product_us,
+                "product_over_field": product_us / field_us,
+                "field_ops": ops[tag, name, "field"],
+                "product_ops": ops[tag, name, "product"],
+            }
+            if name.startswith("without_"):
+                row["cost_in_field_us"] = us[tag, "library", "field"] - field_us
+                row["cost_in_product_us"] = us[tag, "library", "product"] - product_us
+            out.append(row)
+        return out
+
+    return {
+        "problem": f"default_scenario() (3 bodies, 2 connections), state at output "
+        f"{middle} of {states.shape[0]} (t = {float(t0):g} s), 24 parameters "
+        f"(stiffness, damping); single set and vmap over {WIDTH} sets; "
+        f"{n_evals} evaluations per loop, best of {rounds} rounds",
+        "check": check,
+        "single": {"sets": 1, "rows": rows("single")},
+        "vmap": {"sets": WIDTH, "rows": rows("vmap")},
+    }
+
+
+if __name__ == "__main__":
+    from _cli import main
+
+    main(run, __doc__)
