@@ -159,12 +159,33 @@ def _incidence(
     return index, sign
 
 
+def _signed_sum(
+    g: Float[Array, "connections 6"],
+    index: Int[np.ndarray, " width"],
+    sign: Float[np.ndarray, " width"],
+) -> Vector6:
+    """$\\sum_s \\pm g_{k_s}$ over one body's connections (`index`, `sign` from
+    `_incidence`; a zero sign pads), by static slices; zero for a body without one."""
+    terms = [g[int(k)] if s > 0 else -g[int(k)] for k, s in zip(index, sign) if s]
+    if not terms:
+        return jnp.zeros_like(g[0])
+    return functools.reduce(operator.add, terms)
+
+
 # Gather the per-connection forces per body (dense padded lists, no scatter) while
 # bodies x (largest degree) stays within this factor of bodies + 2 connections;
 # beyond (a hub with many links) a segment sum keeps the cost linear.
 _GATHER_OVERHEAD = 4
 # Largest number of connections at one body for which the per-body sum is unrolled.
 _UNROLL = 8
+# Up to this many connections, each connection's ends are read from Y, and each
+# body's sum is formed, by static slices instead of gathers. A gather's transpose is
+# a scatter-add into a zeroed buffer, a slice's a pad, so the vector field's
+# vector-Jacobian product (the gradients' main cost) holds fewer operations, with
+# the same values (`benchmarks/product_parts.py`; docs/performance.md). With 6
+# connections among 4 bodies the product was slower than with gathers, and the
+# program grows with the connections.
+_SLICED = 4
 
 
 class MobileModel(AbstractElasticModel):
@@ -241,7 +262,14 @@ class MobileModel(AbstractElasticModel):
     def _ends(
         self, y: State
     ) -> tuple[Float[Array, "connections 6"], Float[Array, "connections 6"]]:
-        return y[self.pairs[:, 0]], y[self.pairs[:, 1]]
+        """Both ends' rows of `y` for every connection, `(connections, 6)` each."""
+        pairs = self.pairs
+        if 0 < len(pairs) <= _SLICED:
+            return (
+                jnp.stack([y[int(i)] for i in pairs[:, 0]]),
+                jnp.stack([y[int(j)] for j in pairs[:, 1]]),
+            )
+        return y[pairs[:, 0]], y[pairs[:, 1]]
 
     def _potential_of_ends(self, yi: State, yj: State) -> Scalar:
         """$\\Pi$ from both ends' coordinates `(connections, 6)` of every link."""
@@ -271,9 +299,9 @@ class MobileModel(AbstractElasticModel):
 
         Per connection, by autodiff of $\\Pi_{ij}$ and $R_{ij}$ with respect to the
         first end's coordinates (`vmap` over the connections); both depend on
-        $Y_i - Y_j$ only, so the second end gets the opposite. The per-body sums
-        gather each body's connections from the static connectivity (no
-        scatter-add in the hot path).
+        $Y_i - Y_j$ only, so the second end gets the opposite. The ends and the
+        per-body sums come from the static connectivity: by static slices for up
+        to 4 connections, by gathers beyond (no scatter-add in the hot path).
         """
         n = self.n_bodies
         if not self.connectivity:
@@ -288,6 +316,8 @@ class MobileModel(AbstractElasticModel):
 
         def per_body(g: Float[Array, "connections 6"]) -> State:
             """The sum over each body's connections of +-`g` (+ at the first end)."""
+            if len(pairs) <= _SLICED:
+                return jnp.stack([_signed_sum(g, i, s) for i, s in zip(index, sign)])
             if index.size > _GATHER_OVERHEAD * (n + 2 * len(pairs)):
                 ends = np.concatenate([pairs[:, 0], pairs[:, 1]])
                 return jax.ops.segment_sum(jnp.concatenate([g, -g]), ends, n)
