@@ -182,9 +182,8 @@ _UNROLL = 8
 # body's sum is formed, by static slices instead of gathers. A gather's transpose is
 # a scatter-add into a zeroed buffer, a slice's a pad, so the vector field's
 # vector-Jacobian product (the gradients' main cost) holds fewer operations, with
-# the same values (`benchmarks/product_parts.py`; docs/performance.md). With 6
-# connections among 4 bodies the product was slower than with gathers, and the
-# program grows with the connections.
+# the same values (`benchmarks/product_parts.py`; docs/performance.md). Beyond,
+# gathers, as the program would grow with the connections.
 _SLICED = 4
 
 
