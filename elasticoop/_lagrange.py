@@ -71,8 +71,10 @@ _Blocks = dict[tuple[int, int], BodyCoordinate | float]
 
 
 def _coordinates(x: State) -> BodyCoordinates:
-    """`(bodies, 6)` -> six arrays `(bodies,)`, coordinate by coordinate."""
-    return tuple(x[:, k] for k in _COORDINATES)
+    """`(bodies, 6)` -> six arrays `(bodies,)`, coordinate by coordinate (one
+    split: its transpose in a gradient is one concatenation, where six slices'
+    are six pads added up)."""
+    return tuple(c[:, 0] for c in jnp.split(x, 6, axis=1))
 
 
 def _replace(xs: BodyCoordinates, k: int, value: BodyCoordinate) -> BodyCoordinates:
@@ -269,7 +271,7 @@ def _balance(
         model.rotation.angular_velocity_rows(q[3:6]),
     )
     c = _structured_velocity_terms(model, W, q, v)
-    b = tuple(rhs[:, k] - c[k] for k in _COORDINATES)
+    b = tuple(r - c_k for r, c_k in zip(_coordinates(rhs), c, strict=True))
     return W, b, damping
 
 

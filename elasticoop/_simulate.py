@@ -306,12 +306,13 @@ def _pack(y: State, ydot: State, work: Scalar, dissipated: Scalar) -> _ODEState:
 
 
 def _unpack(x: Float[Array, "*times state"]) -> tuple[Array, Array, Array, Array]:
-    """The inverse of `_pack`, also for a leading axis of output times."""
+    """The inverse of `_pack`, also for a leading axis of output times (one split:
+    its transpose in a gradient is one concatenation)."""
     lead, size = x.shape[:-1], x.shape[-1]
     n = (size - 2) // 2
-    y = x[..., :n].reshape(*lead, n // 6, 6)
-    ydot = x[..., n : 2 * n].reshape(*lead, n // 6, 6)
-    return y, ydot, x[..., 2 * n], x[..., 2 * n + 1]
+    y, ydot, work, dissipated = jnp.split(x, [n, 2 * n, 2 * n + 1], axis=-1)
+    shape = (*lead, n // 6, 6)
+    return y.reshape(shape), ydot.reshape(shape), work[..., 0], dissipated[..., 0]
 
 
 # Jitted on its own: the solver's step is traced several times over (the forward

@@ -99,10 +99,10 @@ def _strain(dy: Vector6, rest_length: Scalar, rest_angles: Vector3) -> Vector6:
     """$(\\delta, \\Delta\\mathcal{A} - \\Delta\\mathcal{A}_0)$ of one connection
     from $\\Delta Y = Y_i - Y_j$, as one 6-vector: the deflection of the
     translational part $d$ and the angles' difference, each on its own three
-    entries."""
-    d = dy[:3]
+    entries (split apart: the transpose of a split is a concatenation)."""
+    d, angles = jnp.split(dy, 2)
     return jnp.concatenate(
-        [_deflection_scale(jnp.sum(d * d), rest_length) * d, dy[3:] - rest_angles]
+        [_deflection_scale(jnp.sum(d * d), rest_length) * d, angles - rest_angles]
     )
 
 
@@ -160,12 +160,13 @@ def _incidence(
 
 
 def _signed_sum(
-    g: Float[Array, "connections 6"],
+    g: Sequence[Vector6],
     index: Int[np.ndarray, " width"],
     sign: Float[np.ndarray, " width"],
 ) -> Vector6:
-    """$\\sum_s \\pm g_{k_s}$ over one body's connections (`index`, `sign` from
-    `_incidence`; a zero sign pads), by static slices; zero for a body without one."""
+    """$\\sum_s \\pm g_{k_s}$ over one body's connections (`g`: the connections'
+    rows; `index`, `sign` from `_incidence`, a zero sign pads); zero for a body
+    without one."""
     terms = [g[int(k)] if s > 0 else -g[int(k)] for k, s in zip(index, sign) if s]
     if not terms:
         return jnp.zeros_like(g[0])
@@ -179,11 +180,12 @@ _GATHER_OVERHEAD = 4
 # Largest number of connections at one body for which the per-body sum is unrolled.
 _UNROLL = 8
 # Up to this many connections, each connection's ends are read from Y, and each
-# body's sum is formed, by static slices instead of gathers. A gather's transpose is
-# a scatter-add into a zeroed buffer, a slice's a pad, so the vector field's
-# vector-Jacobian product (the gradients' main cost) holds fewer operations, with
-# the same values (`benchmarks/product_parts.py`; docs/performance.md). Beyond,
-# gathers, as the program would grow with the connections.
+# body's sum is formed, from the rows of a split instead of by gathers. A gather's
+# transpose is a scatter-add into a zeroed buffer, a split's a concatenation, so
+# the vector field's vector-Jacobian product (the gradients' main cost) holds
+# fewer operations, with the same values (`benchmarks/product_parts.py`;
+# docs/performance.md). Beyond, gathers, as the program would grow with the
+# connections.
 _SLICED = 4
 
 
@@ -264,9 +266,10 @@ class MobileModel(AbstractElasticModel):
         """Both ends' rows of `y` for every connection, `(connections, 6)` each."""
         pairs = self.pairs
         if 0 < len(pairs) <= _SLICED:
+            rows = jnp.split(y, y.shape[0])
             return (
-                jnp.stack([y[int(i)] for i in pairs[:, 0]]),
-                jnp.stack([y[int(j)] for j in pairs[:, 1]]),
+                jnp.concatenate([rows[int(i)] for i in pairs[:, 0]]),
+                jnp.concatenate([rows[int(j)] for j in pairs[:, 1]]),
             )
         return y[pairs[:, 0]], y[pairs[:, 1]]
 
@@ -299,8 +302,9 @@ class MobileModel(AbstractElasticModel):
         Per connection, by autodiff of $\\Pi_{ij}$ and $R_{ij}$ with respect to the
         first end's coordinates (`vmap` over the connections); both depend on
         $Y_i - Y_j$ only, so the second end gets the opposite. The ends and the
-        per-body sums come from the static connectivity: by static slices for up
-        to 4 connections, by gathers beyond (no scatter-add in the hot path).
+        per-body sums come from the static connectivity: from the rows of a split
+        for up to 4 connections, by gathers beyond (no scatter-add in the hot
+        path).
         """
         n = self.n_bodies
         if not self.connectivity:
@@ -316,7 +320,10 @@ class MobileModel(AbstractElasticModel):
         def per_body(g: Float[Array, "connections 6"]) -> State:
             """The sum over each body's connections of +-`g` (+ at the first end)."""
             if len(pairs) <= _SLICED:
-                return jnp.stack([_signed_sum(g, i, s) for i, s in zip(index, sign)])
+                rows = [row[0] for row in jnp.split(g, len(pairs))]
+                return jnp.stack(
+                    [_signed_sum(rows, i, s) for i, s in zip(index, sign, strict=True)]
+                )
             if index.size > _GATHER_OVERHEAD * (n + 2 * len(pairs)):
                 ends = np.concatenate([pairs[:, 0], pairs[:, 1]])
                 return jax.ops.segment_sum(jnp.concatenate([g, -g]), ends, n)
