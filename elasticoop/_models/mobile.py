@@ -186,7 +186,7 @@ _UNROLL = 8
 # fewer operations, with the same values (`benchmarks/product_parts.py`;
 # docs/performance.md). Beyond, gathers, as the program would grow with the
 # connections.
-_SLICED = 4
+_SPLIT_CONNECTIONS = 4
 
 
 class MobileModel(AbstractElasticModel):
@@ -265,7 +265,7 @@ class MobileModel(AbstractElasticModel):
     ) -> tuple[Float[Array, "connections 6"], Float[Array, "connections 6"]]:
         """Both ends' rows of `y` for every connection, `(connections, 6)` each."""
         pairs = self.pairs
-        if 0 < len(pairs) <= _SLICED:
+        if 0 < len(pairs) <= _SPLIT_CONNECTIONS:
             rows = jnp.split(y, y.shape[0])
             return (
                 jnp.concatenate([rows[int(i)] for i in pairs[:, 0]]),
@@ -319,7 +319,7 @@ class MobileModel(AbstractElasticModel):
 
         def per_body(g: Float[Array, "connections 6"]) -> State:
             """The sum over each body's connections of +-`g` (+ at the first end)."""
-            if len(pairs) <= _SLICED:
+            if len(pairs) <= _SPLIT_CONNECTIONS:
                 rows = [row[0] for row in jnp.split(g, len(pairs))]
                 return jnp.stack(
                     [_signed_sum(rows, i, s) for i, s in zip(index, sign, strict=True)]
