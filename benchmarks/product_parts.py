@@ -78,7 +78,8 @@ def inertial_accelerations(model, y, ydot, rhs):
         model.rotation.angular_velocity_rows(q[3:6]),
     )
     c = _lagrange._structured_velocity_terms(model, blocks, q, v)
-    return jnp.stack(blocks.solve(tuple(rhs[:, k] - c[k] for k in range(6))), -1)
+    b = tuple(r - c_k for r, c_k in zip(_lagrange._coordinates(rhs), c, strict=True))
+    return jnp.stack(blocks.solve(b), -1)
 
 
 def rebuilt(scenario, restoring=True, inertial=True, applied=True):
