@@ -27,6 +27,13 @@ connections), nudged by the previous result, as `defaults.py` times the library'
 runtime runs one after the other (the fusions and other instructions of the entry
 computation and of the loop's body, less those that move no data).
 
+`linearization`: the library's product taken apart into its primal half (the
+field evaluated again with what the transpose needs, `jax.vjp`'s residuals:
+`residual_floats_per_set`) and its transpose, timed alone in a loop of its own
+(`transpose_us`: `jax.vjp` taken once before the loop, each pullback nudged by
+the previous result), for one set and under `vmap`: what a product would cost if
+its primal half came at no cost.
+
 Reading the results: a part's cost (`cost_in_field_us`, `cost_in_product_us`) is
 the library's time less the time without it; its cost in the product over its cost
 in the field, against the library's `product_over_field`, says whether the part
@@ -44,6 +51,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -168,6 +176,52 @@ def operations(compiled) -> int:
     return count
 
 
+def transpose_loop(field, t0, x0, x_bar0, params, n_evals: int, width: int | None):
+    """A compiled loop of `n_evals` transposes of the field's linearization at
+    `(t0, x0)`: `jax.vjp` taken once before the loop (its residuals held), each
+    pullback nudged by the previous result, as `product_loop` nudges the point.
+    What the product would cost if its primal half came at no cost. With `width`:
+    under `vmap` over that many parameter sets (leading axis)."""
+
+    def linearize(p):
+        return jax.vjp(lambda x, q: field(t0, x, q), x0, p)[1]
+
+    def transpose(pullback, x_bar):
+        x_bar, p_bar = pullback(x_bar0 + 1e-12 * x_bar)
+        return x_bar, jnp.sum(p_bar[0]) + jnp.sum(p_bar[1])
+
+    batch = () if width is None else (width,)
+    if width is not None:
+        linearize, transpose = jax.vmap(linearize), jax.vmap(transpose)
+
+    @jax.jit
+    def run(p):
+        pullback = linearize(p)
+
+        def body(k, carry):
+            x_bar, acc = carry
+            x_bar, a = transpose(pullback, x_bar)
+            return x_bar, acc + a
+
+        start = (jnp.zeros((*batch, *x0.shape)), jnp.zeros(batch))
+        return jax.lax.fori_loop(0, n_evals, body, start)
+
+    return run
+
+
+def residual_floats(field, t0, x0, params) -> int:
+    """The floating-point numbers the field's linearization keeps for its
+    transpose (the residuals of `jax.vjp`), one parameter set."""
+    pullback = jax.eval_shape(
+        lambda p: jax.vjp(lambda x, q: field(t0, x, q), x0, p)[1], params
+    )
+    return sum(
+        int(np.prod(leaf.shape))
+        for leaf in jax.tree.leaves(pullback)
+        if jnp.issubdtype(leaf.dtype, jnp.floating)
+    )
+
+
 def run(quick: bool = False) -> dict:
     n_evals, rounds = (100, 1) if quick else (5000, 15)
     s = eo.default_scenario()
@@ -195,6 +249,10 @@ def run(quick: bool = False) -> dict:
                 "field": evaluation_loop(evaluate, x0, n_evals, width),
                 "product": product_loop(field, t0, x0, x_bar0, n_evals, width),
             }
+            if name == "library":
+                loops["transpose"] = transpose_loop(
+                    field, t0, x0, x_bar0, params, n_evals, width
+                )
             for kind, loop in loops.items():
                 calls[tag, name, kind] = (loop, (args,))
                 ops[tag, name, kind] = operations(loop.lower(args).compile())
@@ -219,6 +277,16 @@ def run(quick: bool = False) -> dict:
             out.append(row)
         return out
 
+    def split(tag):
+        product_us = us[tag, "library", "product"]
+        transpose_us = us[tag, "library", "transpose"]
+        return {
+            "product_us": product_us,
+            "transpose_us": transpose_us,
+            "transpose_share": transpose_us / product_us,
+            "transpose_ops": ops[tag, "library", "transpose"],
+        }
+
     return {
         "problem": f"default_scenario() (3 bodies, 2 connections), state at output "
         f"{middle} of {states.shape[0]} (t = {float(t0):g} s), 24 parameters "
@@ -227,6 +295,11 @@ def run(quick: bool = False) -> dict:
         "check": check,
         "single": {"sets": 1, "rows": rows("single")},
         "vmap": {"sets": WIDTH, "rows": rows("vmap")},
+        "linearization": {
+            "residual_floats_per_set": residual_floats(library, t0, x0, params),
+            "single": split("single"),
+            "vmap": split("vmap"),
+        },
     }
 
 
