@@ -640,7 +640,8 @@ def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[
     batch_width = manifest["batch_width"]
     n_devices = mesh.devices.size
     strata = lhs_strata(study)
-    traced = _replicated(mesh, study)
+    program = study._program_view()
+    traced = _replicated(mesh, program)
     in_memory = []
     n_done = int(
         sum(
@@ -668,7 +669,7 @@ def _run_chunks(study, store, manifest, done, mesh, progress, on_chunk) -> list[
             numbers = np.arange(start, start + padded)
             index = np.minimum(numbers, stop - 1)
             if study.initial == "equilibrium":
-                starts = np.asarray(_sample_starts(study, index, strata[index]))
+                starts = np.asarray(_sample_starts(program, index, strata[index]))
             else:
                 starts = np.zeros((padded, 0))  # not used
             launches = [

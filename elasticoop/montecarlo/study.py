@@ -1,6 +1,7 @@
 """`Study`: the specification of a Monte Carlo study (what varies, what is kept),
 and what one sample of it computes."""
 
+import copy
 import hashlib
 import json
 import warnings
@@ -63,7 +64,9 @@ class Study(eqx.Module):
     A `Study` is a pytree: its arrays (the model, initial state, forces, times, key
     and the distributions' parameters) are leaves, its structure (parameters and
     outputs, sampling, `n_samples`, solver options, shapes) is static. Studies that
-    differ only in those arrays share compiled code.
+    differ only in those arrays share compiled code, and so do studies that differ
+    in `n_samples` too (run in chunks of the same size), but for Latin hypercube
+    sampling.
 
     **Arguments:**
 
@@ -372,6 +375,20 @@ class Study(eqx.Module):
             name: jax.ShapeDtypeStruct(shape, dtype)
             for name, shape, dtype in self._record
         }
+
+    def _program_view(self) -> "Study":
+        """This study as `run_study`'s compiled programs take it. Of the static
+        fields, `n_samples` is read inside them only by Latin hypercube sampling
+        (the strata's width); for any other sampling it is set to 1 in a copy,
+        so that a study extended to more samples, or another of the same
+        structure with another number of samples, reuses the compiled batch
+        instead of compiling it again."""
+        if self.sampling == "lhs":
+            return self
+        view = copy.copy(self)
+        # (a static field of a frozen Module, set on a fresh copy of it)
+        object.__setattr__(view, "n_samples", 1)
+        return view
 
     def _labels(self) -> dict[str, list]:
         """Labels of the named axes shared with the trajectory export: `time`,
