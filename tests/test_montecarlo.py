@@ -2,6 +2,7 @@
 store, failures and sensitivities."""
 
 import json
+import logging
 import re
 
 import equinox as eqx
@@ -433,7 +434,7 @@ def test_a_lift_drawn_without_duration_is_an_invalid_sample():
 
 
 @pytest.mark.slow
-def test_sensitivities_match_finite_differences():
+def test_sensitivities_match_finite_differences(caplog):
     params = [
         mc.Parameter(
             "stiffness", lambda m: m.stiffness, mc.LogNormal(0.0, 0.2), relative=True
@@ -443,18 +444,22 @@ def test_sensitivities_match_finite_differences():
         ),
     ]
     y0 = three_body_state()
-    study = mc.Study(
-        three_body_model(),
-        y0,
-        np.zeros_like(y0),
-        np.linspace(0.0, 0.2, 5),
-        forces=_lift(),
-        parameters=params,
-        outputs={"error": mc.final_pose_error(), "deflection": mc.max_deflection()},
-        n_samples=2,
-        key=3,
-        options=eo.SimulationOptions(rtol=1e-12, atol=1e-14),
-    )
+
+    def study_of(n_samples):
+        return mc.Study(
+            three_body_model(),
+            y0,
+            np.zeros_like(y0),
+            np.linspace(0.0, 0.2, 5),
+            forces=_lift(),
+            parameters=params,
+            outputs={"error": mc.final_pose_error(), "deflection": mc.max_deflection()},
+            n_samples=n_samples,
+            key=3,
+            options=eo.SimulationOptions(rtol=1e-12, atol=1e-14),
+        )
+
+    study = study_of(2)
     sens = mc.local_sensitivities(study, batch_width=2)
     assert sens.sizes["sample"] == 2
     values = mc.sample_parameters(study)
@@ -497,6 +502,14 @@ def test_sensitivities_match_finite_differences():
     ranking = mc.variance_ranking(sens, "deflection", connection=0)
     np.testing.assert_allclose(float(ranking.sum()), 1.0, rtol=1e-12)
     assert np.all(np.diff(ranking.values) <= 0)
+    # The same study with more samples: its first two are the same draws (the
+    # same key), whose derivatives come from the program already compiled.
+    with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles(True):
+        first = mc.local_sensitivities(study_of(4), indices=[0, 1], batch_width=2)
+    compiled = [r.getMessage() for r in caplog.records]
+    assert any("Finished XLA compilation" in m for m in compiled)  # (logged)
+    assert not [m for m in compiled if "_jacobians" in m]
+    xr.testing.assert_identical(first.drop_attrs(), sens.drop_attrs())
 
 
 def test_variance_ranking_by_hand():

@@ -89,10 +89,11 @@ def local_sensitivities(study: Study, indices=None, batch_width: int = 8) -> xr.
     padded = -(-n // batch_width) * batch_width
     pad = np.minimum(np.arange(padded), n - 1)
     parts = []
+    program = study._program_view()
     for start in range(0, padded, batch_width):
         rows = pad[start : start + batch_width]
         batch = {k: jnp.asarray(v[rows]) for k, v in values.items()}
-        parts.append(_jacobians(study, batch))
+        parts.append(_jacobians(program, batch))
     jac, outputs, status = jax.tree.map(
         lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:n], *parts
     )

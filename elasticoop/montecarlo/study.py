@@ -377,12 +377,13 @@ class Study(eqx.Module):
         }
 
     def _program_view(self) -> "Study":
-        """This study as `run_study`'s compiled programs take it. Of the static
-        fields, `n_samples` is read inside them only by Latin hypercube sampling
-        (the strata's width); for any other sampling it is set to 1 in a copy,
-        so that a study extended to more samples, or another of the same
-        structure with another number of samples, reuses the compiled batch
-        instead of compiling it again."""
+        """This study as its compiled programs take it (`run_study`'s batch and
+        rest states, `local_sensitivities`' derivatives). Of the static fields,
+        `n_samples` is read inside them only by Latin hypercube sampling (the
+        strata's width); for any other sampling it is set to 1 in a copy, so that
+        a study extended to more samples, or another of the same structure with
+        another number of samples, reuses the compiled programs instead of
+        compiling them again."""
         if self.sampling == "lhs":
             return self
         view = copy.copy(self)
