@@ -49,6 +49,25 @@ def test_a_bad_sensitivity_table_is_named(tmp_path, capsys, table, message):
     assert "Traceback" not in err
 
 
+@pytest.mark.parametrize(
+    "samples, message",
+    [
+        ("3", "--samples 3: the sobol design takes a power of two of base points"),
+        ("1", "--samples 1: input should be greater than or equal to 2 (got 1)"),
+    ],
+)
+def test_samples_that_do_not_fit_the_design_are_named(
+    tmp_path, capsys, samples, message
+):
+    # Before: a traceback ("This is a bug in elasticoop"), exit code 1.
+    study = _small_study(tmp_path)
+    argv = ["montecarlo", "sensitivity", str(study), "-o", str(tmp_path / "s")]
+    assert main([*argv, "--samples", samples]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err
+    assert not (tmp_path / "s").exists()
+
+
 def test_a_store_of_another_design_is_refused_with_the_way_out(tmp_path, capsys):
     assert main(["montecarlo", "sensitivity", str(tmp_path)]) == 2
     assert "not a study store" in capsys.readouterr().err

@@ -10,8 +10,10 @@ import os
 import pathlib
 
 import numpy as np
+from pydantic import ValidationError
 
 from .._config import load_study
+from .._config.problems import message_of
 from .._config.study_schema import SensitivityTable
 from .._io.strict_json import strict_json
 from ..montecarlo import (
@@ -55,9 +57,7 @@ def execute(args, read_record, use_cache) -> int:
     study_file = load_study(target)
     table = study_file.sensitivity or SensitivityTable()
     if args.samples is not None:
-        table = SensitivityTable.model_validate(
-            table.model_dump() | {"samples": args.samples}
-        )
+        table = _with_samples(table, args.samples)
     from ..montecarlo import sensitivity_study
 
     study = sensitivity_study(
@@ -92,6 +92,19 @@ def execute(args, read_record, use_cache) -> int:
     if not is_first_process():
         return EXIT_OK
     return analyse(args, store, table, study, record)
+
+
+def _with_samples(table: SensitivityTable, samples: int) -> SensitivityTable:
+    """`table` with the base points of `--samples`, or a `UserError` naming the
+    option and why its value does not fit the table's method."""
+    try:
+        return SensitivityTable.model_validate(
+            table.model_dump() | {"samples": samples}
+        )
+    except ValidationError as err:
+        reasons = [message_of(dict(e)) for e in err.errors()]
+        reasons = [r.removeprefix(f"samples = {samples}: ") for r in reasons]
+        raise UserError(f"--samples {samples}: {'; '.join(reasons)}") from err
 
 
 def _keep(store: pathlib.Path, record: dict) -> None:
