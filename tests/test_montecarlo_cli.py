@@ -58,9 +58,17 @@ axes = ["x", "y"]
 distribution = "uniform"
 relative_spread = [0.1, 0.2, 0.3]
 
+[[parameters]]
+quantity = "gravity"
+distribution = "uniform"
+absolute_spread = -0.1
+
 [[outputs]]
 quantity = "object_pose"
 thresholds = [1.0]
+
+[sensitivity]
+outputs = ["object_pose"]
 """
 
 
@@ -70,7 +78,7 @@ def test_a_study_file_reports_every_problem_at_once(tmp_path):
         load_study(path)
     err = info.value
     text = str(err)
-    assert text.startswith(f"{path}: 9 problems in the study file:"), text
+    assert text.startswith(f"{path}: 10 problems in the study file:"), text
     found = {(p.table, p.key) for p in err.problems}
     assert found == {
         ("(top level)", "colour"),
@@ -81,8 +89,9 @@ def test_a_study_file_reports_every_problem_at_once(tmp_path):
         ("[[parameters]] #3 (mass)", "relative_spread"),
         ("[[parameters]] #4 (damping)", ""),
         ("[[parameters]] #5 (kp)", "relative_spread"),
+        ("[[parameters]] #6 (gravity)", "absolute_spread"),
         ("[[outputs]] #1 (object_pose)", "thresholds"),
-    }, err.problems
+    }, err.problems  # (not [sensitivity]: its output's own problem is reported)
     # each message names the value that is wrong
     assert "'beam-middle'" in text and "beam-left, beam-right" in text
     assert "'sobol'" in text
@@ -91,6 +100,10 @@ def test_a_study_file_reports_every_problem_at_once(tmp_path):
     assert "already varied by [[parameters]] #1" in text
     assert "2: x, y), got 3 numbers" in text
     assert "'object_pose' is a time series; thresholds apply" in text
+    # a spread, a number or a list, is reported once, by its key (before: once
+    # for each kind, keys named by pydantic's internal names of the kinds)
+    assert "input should be greater than or equal to 0 (got -0.1)" in text
+    assert "function-after" not in text
 
 
 def test_a_missing_scenario_is_named(tmp_path):

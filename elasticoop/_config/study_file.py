@@ -201,10 +201,17 @@ class _StudyBuilder:
         )
 
     def check_sensitivity(self, outputs: dict) -> None:
-        """The `[sensitivity]` table's outputs are the study's."""
+        """The `[sensitivity]` table's outputs are the study's. (A name of an
+        `[[outputs]]` table with a problem of its own, which is reported, is not
+        reported again here.)"""
         table = self.s.get("sensitivity")
+        declared = {
+            entry.get("name", entry.get("quantity"))
+            for entry in self.raw.get("outputs") or []
+            if isinstance(entry, dict)
+        }
         for name in (table.outputs or []) if table is not None else []:
-            if name not in outputs:
+            if name not in outputs and name not in declared:
                 self.add(
                     "[sensitivity]",
                     "outputs",

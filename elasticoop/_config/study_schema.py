@@ -8,9 +8,17 @@ exists in its model) are made when the study is built.
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import (
+    ConfigDict,
+    Field,
+    PlainValidator,
+    TypeAdapter,
+    ValidationError,
+    model_validator,
+)
 
 from .._options import MAX_STEPS_LIMIT
+from .problems import message_of
 from .schema import Fraction, Name, NonNegative, Number, Positive, Table
 
 # The quantities a study may vary, and the outputs it may keep (the names in the
@@ -45,7 +53,32 @@ Identifier = Annotated[
         description="a name in the results: letters, digits and '_'",
     ),
 ]
-Spread = NonNegative | Annotated[list[NonNegative], Field(min_length=1)]
+_STRICT = ConfigDict(strict=True)  # (as `Table`: no number from a string)
+_SPREAD_NUMBER: TypeAdapter = TypeAdapter(NonNegative, config=_STRICT)
+_SPREAD_LIST: TypeAdapter = TypeAdapter(
+    Annotated[list[NonNegative], Field(min_length=1)], config=_STRICT
+)
+
+
+def _spread(value):
+    """A spread: one number for every entry of the quantity, or a list of them.
+    Validated as the one or the other by the value's type, so that a problem is
+    reported once, by the key's name (a union reports one for each kind)."""
+    adapter = _SPREAD_LIST if isinstance(value, list) else _SPREAD_NUMBER
+    try:
+        return adapter.validate_python(value)
+    except ValidationError as err:
+        problems = []
+        for e in err.errors():
+            where = "".join(f"[{p}]" for p in e["loc"] if isinstance(p, int))
+            where = f"entry {where}" if where else ""
+            problems.append(
+                f"{where}: {message_of(dict(e))}" if where else message_of(dict(e))
+            )
+        raise ValueError("; ".join(problems)) from None
+
+
+Spread = Annotated[float | list[float], PlainValidator(_spread)]
 
 
 class StudyInfo(Table):
