@@ -356,7 +356,7 @@ MALFORMED = [
         ),
         "[forces]",
         "samples",
-        "non-numbers",
+        "column 'grip.fz', data row 2: not a number: 'heavy'",
     ),
     (
         "CSV shorter than the time span",
@@ -396,7 +396,7 @@ MALFORMED = [
         ),
         "[forces]",
         "samples",
-        "column 'grip.fz' holds non-numbers",
+        "column 'grip.fz', data row 1: not a number: 'true'",
     ),
     (
         "CSV column naming no component",

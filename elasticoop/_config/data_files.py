@@ -20,6 +20,13 @@ from .limits import (
 TIME_COLUMNS = ("t", "time")
 
 
+def _as_written(cell) -> str:
+    """A cell of a CSV file as its text (pandas reads true and false as booleans)."""
+    if isinstance(cell, bool | np.bool_):
+        return str(bool(cell)).lower()
+    return str(cell).strip()
+
+
 def resolve(base_dir: pathlib.Path, name: str) -> pathlib.Path:
     path = pathlib.Path(name).expanduser()
     return path if path.is_absolute() else base_dir / path
@@ -188,7 +195,19 @@ def read_series(base_dir: pathlib.Path, name: str):
         or pd.api.types.is_bool_dtype(frame[col])
     ]
     if bad:
-        raise ValueError(f"file '{name}': column '{bad[0]}' holds non-numbers")
+        cells = frame[frame.columns[columns.index(bad[0])]]
+        # (true and false: a column of booleans, each of its cells wrong)
+        wrong = cells.notna() & (
+            pd.to_numeric(cells, errors="coerce").isna()
+            | pd.api.types.is_bool_dtype(cells)
+        )
+        row = int(np.flatnonzero(wrong.to_numpy())[0]) if wrong.any() else None
+        raise ValueError(
+            f"file '{name}', column '{bad[0]}': holds non-numbers"
+            if row is None
+            else f"file '{name}', column '{bad[0]}', data row {row + 1}: not a "
+            f"number: {_as_written(cells.iloc[row])!r}"
+        )
     values = frame.to_numpy(dtype=np.float64)
     if not np.all(np.isfinite(values)):
         row = int(np.argwhere(~np.isfinite(values))[0, 0])
