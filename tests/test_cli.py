@@ -214,6 +214,10 @@ def test_progress_bar_only_when_not_quiet_and_supported(monkeypatch):
     assert _common.progress_overrides(quiet) == {}
     monkeypatch.setattr(_simulate, "simulate", lambda model, y, ydot, ts: None)
     assert _common.progress_overrides(loud) == {}
+    # (what `montecarlo` asks of `run_study`)
+    assert _common.shows_progress(loud) and not _common.shows_progress(quiet)
+    monkeypatch.setattr(_common.sys.stderr, "isatty", lambda: False, raising=False)
+    assert not _common.shows_progress(loud)
 
 
 @pytest.mark.slow

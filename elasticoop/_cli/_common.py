@@ -160,11 +160,17 @@ def say(args, *lines) -> None:
         print(*lines, sep="\n")
 
 
+def shows_progress(args) -> bool:
+    """Whether to draw a progress bar: not quiet, and stderr is a terminal (a bar
+    written to a file or a pipe is a line per update)."""
+    return not args.quiet and sys.stderr.isatty()
+
+
 def progress_overrides(args) -> dict:
     """A tqdm progress bar for the solve (`diffrax.TqdmProgressMeter`, drawn on
-    stderr through host callbacks) when not quiet, stderr is a terminal, and
-    `simulate` accepts a `progress_meter`."""
-    if args.quiet or not sys.stderr.isatty():
+    stderr through host callbacks) when `shows_progress` and `simulate` accepts a
+    `progress_meter`."""
+    if not shows_progress(args):
         return {}
     from .._simulate import simulate
 

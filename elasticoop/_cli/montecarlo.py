@@ -29,6 +29,7 @@ from ._common import (
     common_options,
     positive_int,
     say,
+    shows_progress,
     write_text_atomic,
 )
 
@@ -158,7 +159,7 @@ def run(args) -> int:
                 study,
                 store,
                 batch_width=args.batch_width,
-                progress=not args.quiet,
+                progress=shows_progress(args),
                 on_chunk=keep_record,
             )
         except (StoreError, StoreLockedError, StudyTooLargeError) as err:

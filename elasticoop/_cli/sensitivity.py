@@ -25,7 +25,7 @@ from ..montecarlo import (
 )
 from ..montecarlo.distributed import is_first_process
 from ..montecarlo.sampling import rows_per_point
-from ._common import EXIT_OK, UserError, say, write_text_atomic
+from ._common import EXIT_OK, UserError, say, shows_progress, write_text_atomic
 
 FOLDER = "sensitivity"
 RECORD = "study_file.json"  # shared with `montecarlo` (its STUDY_FILE_RECORD)
@@ -83,7 +83,7 @@ def execute(args, read_record, use_cache) -> int:
                 study,
                 store,
                 batch_width=args.batch_width,
-                progress=not args.quiet,
+                progress=shows_progress(args),
                 on_chunk=lambda _chunk: _keep(store, record),
             )
         except (StoreError, StoreLockedError, StudyTooLargeError) as err:
