@@ -11,6 +11,7 @@ import importlib
 import os
 import pathlib
 import sys
+import types
 from collections.abc import Callable
 from typing import Any
 
@@ -65,6 +66,14 @@ def lazy_attributes(
         return value
 
     def __dir__() -> list[str]:
-        return sorted(set(vars(sys.modules[package])) | set(lazy))
+        # (not the modules the package imports for itself, such as `typing`, nor
+        # its private submodules: only those of `lazy` are public)
+        namespace = vars(sys.modules[package])
+        own = {
+            name
+            for name, value in namespace.items()
+            if not isinstance(value, types.ModuleType)
+        }
+        return sorted(own | set(lazy))
 
     return __getattr__, __dir__

@@ -139,6 +139,9 @@ def test_deferred_names_resolve(package):
         defining = importlib.import_module(where, package)
         assert value is (defining if where == f".{name}" else getattr(defining, name))
         assert name in dir(module)
+    # and `dir` lists nothing else public (before: `typing`, which the package
+    # imports for itself)
+    assert {n for n in dir(module) if not n.startswith("_")} == set(deferred)
     with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
         module.not_a_name  # noqa: B018
 

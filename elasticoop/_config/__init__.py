@@ -7,7 +7,7 @@ layer).
 
 import typing
 
-from .._lazy import lazy_attributes
+from .._lazy import lazy_attributes as _lazy_attributes
 
 if typing.TYPE_CHECKING:
     from .build import build_scenario as build_scenario, load_scenario as load_scenario
@@ -24,4 +24,4 @@ if typing.TYPE_CHECKING:
         load_study as load_study,
     )
 
-__getattr__, __dir__ = lazy_attributes(__name__, __file__)
+__getattr__, __dir__ = _lazy_attributes(__name__, __file__)
