@@ -106,7 +106,9 @@ class SimulationOptions(eqx.Module):
       $|\\cos(\\text{pitch})|$ (RPY) falls below this (in (0, 1)).
     - `link_tol`: a run stops when a link of rest length $\\rho_0 > 0$ shrinks to
       $|r_i - r_j| <$ `link_tol` $\\rho_0$ (in (0, 1)).
-    - `owner`: the name used in error messages (`"simulate"`, `"Study"`, ...).
+    - `owner`: the name used in error messages (`"SimulationOptions"`, or where
+      a function builds the options from its own keywords, `"simulate"`,
+      `"Study"`, ...).
     """
 
     solver: Solver | str = eqx.field(static=True, default=DEFAULT_SOLVER)
@@ -115,7 +117,7 @@ class SimulationOptions(eqx.Module):
     max_steps: int = eqx.field(static=True, default=100_000)
     gimbal_tol: float = eqx.field(static=True, default=GIMBAL_TOL)
     link_tol: float = eqx.field(static=True, default=LINK_TOL)
-    owner: str = eqx.field(static=True, default="simulate", compare=False)
+    owner: str = eqx.field(static=True, default="SimulationOptions", compare=False)
 
     def __check_init__(self):
         if isinstance(self.solver, str):
@@ -202,4 +204,4 @@ def resolve_options(options: Any, owner: str, **fields: Any) -> SimulationOption
         return SimulationOptions(**given, owner=owner)
     if not given:
         return options
-    return dataclasses.replace(options, **given)
+    return dataclasses.replace(options, **given, owner=owner)

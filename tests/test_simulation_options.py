@@ -47,6 +47,18 @@ def test_simulate_takes_options_and_the_old_keywords_with_a_warning():
     assert int(capped.status) == eo.Status.MAX_STEPS_REACHED
 
 
+def test_a_bad_field_is_named_by_who_was_given_it():
+    # built by the user: the class's name (before: "simulate.solver ...")
+    with pytest.raises(ValueError, match=r"^SimulationOptions.solver must be one of"):
+        eo.SimulationOptions(solver="rk45")
+    with pytest.raises(ValueError, match=r"^SimulationOptions.rtol must be a positive"):
+        eo.SimulationOptions(rtol=-1.0)
+    # a deprecated keyword of `simulate` replacing a field of given options: simulate's
+    with pytest.warns(DeprecationWarning):
+        with pytest.raises(ValueError, match=r"^simulate.rtol must be a positive"):
+            eo.simulate(MODEL, Y0, YDOT0, TS, options=OPTIONS, rtol=-1.0)
+
+
 def test_simulate_refuses_options_of_another_type():
     with pytest.raises(ValueError, match="simulate.options must be a Simulation"):
         eo.simulate(MODEL, Y0, YDOT0, TS, options={"rtol": 1e-6})
