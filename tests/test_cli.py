@@ -96,6 +96,25 @@ def test_check_accepts_every_example(examples_dir, capsys, names):
     assert capsys.readouterr().out == ""
 
 
+def test_check_reads_a_study_file_as_a_study_file(examples_dir, capsys):
+    # Before: read as a scenario, "unknown key 'scenario'", "missing table [model]"
+    study = (examples_dir / "beam_lift.study.toml").read_text()
+    bad = examples_dir / "bad.study.toml"
+    bad.write_text(study.replace("absolute_spread = 0.1", "absolute_spread = -0.1"))
+    assert main(["check", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "1 problem in the study file" in err and "(got -0.1)" in err, err
+    assert "unknown key" not in err and "Traceback" not in err
+
+
+@pytest.mark.slow  # builds the study (it traces a run of the scenario)
+def test_check_accepts_the_shipped_study(examples_dir, capsys):
+    assert main(["check", str(examples_dir / "beam_lift.study.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "valid study file 'beam lift with uncertain grasps'" in out
+    assert "1000 samples (lhs), parameters: stiffness, damping, mass, kp" in out
+
+
 @pytest.mark.parametrize("name", EXAMPLES)
 @pytest.mark.slow
 def test_run_every_example(examples_dir, tmp_path, capsys, name):

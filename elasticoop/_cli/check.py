@@ -1,6 +1,8 @@
-"""`elasticoop check SCENARIO...`: validate scenario files without simulating."""
+"""`elasticoop check FILE...`: validate scenario files, and Monte Carlo study files,
+without simulating."""
 
 import sys
+import tomllib
 
 import numpy as np
 
@@ -21,17 +23,22 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser(
         NAME,
         parents=[common_options()],
-        help="validate scenario files (no simulation)",
+        help="validate scenario and study files (no simulation)",
         description=(
             "Validate one or more TOML scenario files: every table and key, the "
             "bodies named by connections, initial states, forces and prescribed "
             "coordinates, and the data files they refer to. All problems of a "
             "file are listed at once. Exit code 0 when all files are valid, 2 "
-            "otherwise."
+            "otherwise. A Monte Carlo study file (*.study.toml, or a file with a "
+            "[sampling] table) is checked as 'elasticoop montecarlo' reads it, "
+            "with its scenario."
         ),
     )
     parser.add_argument(
-        "scenarios", metavar="SCENARIO", nargs="+", help="TOML scenario file(s)"
+        "scenarios",
+        metavar="FILE",
+        nargs="+",
+        help="TOML scenario or study file(s)",
     )
     parser.set_defaults(func=execute)
 
@@ -79,10 +86,43 @@ def scenario_lines(scenario) -> list[str]:
     return lines
 
 
+def _is_study_file(path: str) -> bool:
+    """Whether `path` names a Monte Carlo study file: `*.study.toml`, as the shipped
+    one, or a TOML file with a `[sampling]` table (a scenario file has none)."""
+    if str(path).endswith(".study.toml"):
+        return True
+    try:
+        with open(path, "rb") as file:
+            return "sampling" in tomllib.load(file)
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return False  # (the scenario's loader names the problem)
+
+
+def study_lines(study_file) -> list[str]:
+    """A few lines describing a loaded study file."""
+    study = study_file.study
+    return [
+        f"  scenario: {study_file.scenario_file}",
+        f"  {study.n_samples} samples ({study.sampling}), parameters: "
+        + ", ".join(p.name for p in study.parameters),
+        f"  outputs: {', '.join(study.outputs)}",
+    ]
+
+
 def execute(args) -> int:
     errors = []
     for path in args.scenarios:
         try:
+            if _is_study_file(path):
+                from .._config import load_study
+
+                study_file = load_study(path)
+                say(
+                    args,
+                    f"{path}: valid study file '{study_file.name}'",
+                    *study_lines(study_file),
+                )
+                continue
             scenario = load(path)
         except ScenarioError as err:
             errors.append(err)
