@@ -3,6 +3,7 @@ studies, a damaged store is never trusted, and two runs never write one store.""
 
 import json
 import os
+import pathlib
 import re
 import shutil
 import socket
@@ -329,3 +330,27 @@ def test_a_second_run_on_a_locked_store_fails_without_touching_it(
     assert len(errors) == 2 and all(f"is in use by {holder}" in e for e in errors)
     _same(ds, reference)
     assert not (store / ".lock").exists()
+
+
+@pytest.mark.parametrize("sampling", ["lhs", "random"])
+def test_a_latin_hypercube_store_given_more_samples_says_why_it_is_refused(sampling):
+    """A store refuses a study that differs from its own (here: the number of
+    samples of a study whose `extends` fails, as the other runs' do not); for a
+    Latin hypercube given more samples the message says that such a store never
+    extends (before: only "these parts differ: settings, n_samples")."""
+    from elasticoop.montecarlo.store import _check_same_study
+
+    def manifest(n):
+        return {
+            "fingerprint": f"print-{n}",
+            "chunk_size": 8,
+            "batch_width": 4,
+            "parts": {"settings": f"settings-{n}"},
+            "study": {"n_samples": n, "sampling": sampling},
+        }
+
+    with pytest.raises(mc.StoreError, match="holds another study") as err:
+        _check_same_study(pathlib.Path("store"), manifest(4), manifest(6))
+    message = str(err.value)
+    assert "these parts differ: settings, n_samples" in message
+    assert ("its store cannot be extended" in message) == (sampling == "lhs")

@@ -54,14 +54,20 @@ def register(subparsers) -> None:
         description=(
             "Run the Monte Carlo study that the study file STUDY.toml describes "
             "(see 'elasticoop examples' for one) and keep every sample's result in "
-            "the folder STORE, chunk by chunk, with a progress bar. Running the "
-            "same command again resumes an interrupted study; a STORE of a "
+            "the folder STORE, chunk by chunk, with a progress bar on a terminal. "
+            "Running the same command again resumes an interrupted study; a STORE "
+            "of a "
             "different study is refused. At the end the sample counts, statistics "
             "and exceedance probabilities are printed. 'elasticoop montecarlo "
             "summary STORE' prints them again, writes them to STORE/summary/"
             "summary.json and draws into STORE/summary/ the quantile bands of the "
             "outputs over time, the histograms of the other outputs and their "
-            "sensitivity ranking (Spearman rank correlations). Exit code 0 on "
+            "sensitivity ranking (Spearman rank correlations). 'elasticoop "
+            "montecarlo sensitivity STUDY.toml -o STORE' runs the design of the "
+            "study file's [sensitivity] table (Sobol', Morris or DGSM; --samples "
+            "sets its base points) and writes the indices, with their intervals, "
+            "and their plots into STORE/sensitivity/; 'elasticoop montecarlo "
+            "sensitivity STORE' analyses such a store again. Exit code 0 on "
             "success, 2 for an invalid study or scenario file or an unusable "
             "STORE. Failed samples never stop the study: they are counted."
         ),
@@ -69,7 +75,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "target",
         metavar="STUDY.toml",
-        help="the study file (or the word 'summary', followed by STORE)",
+        help="the study file (or the word 'summary' or 'sensitivity', see above)",
     )
     parser.add_argument("store", metavar="STORE", nargs="?", help=argparse.SUPPRESS)
     parser.add_argument(
@@ -80,7 +86,8 @@ def register(subparsers) -> None:
         type=positive_int,
         metavar="N",
         help="draw N samples instead of the study file's (a trial run; more "
-        "samples extend a store, except a Latin hypercube's)",
+        "samples extend a store, except a Latin hypercube's); with 'sensitivity', "
+        "N base points of its design instead of the [sensitivity] table's",
     )
     parser.add_argument(
         "--batch-width",

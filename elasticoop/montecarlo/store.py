@@ -316,12 +316,27 @@ def _check_same_study(path: Path, existing: dict, manifest: dict) -> None:
             ]
             if differ:
                 detail = f"; these parts differ: {', '.join(dict.fromkeys(differ))}"
+            detail += _latin_hypercube_grown(existing, manifest)
             detail += _version_change(existing, manifest)
         raise StoreError(
             f"the store {path} holds another study: its {key} is "
             f"{_short(existing[key])}, this run's is {_short(manifest[key])}"
             f"{detail}. Resume with the same settings or use a new folder."
         )
+
+
+def _latin_hypercube_grown(existing: dict, manifest: dict) -> str:
+    """Why a Latin hypercube study given more samples is not extended (every
+    other sampling is: `extension.py`)."""
+    old, new = existing.get("study", {}), manifest["study"]
+    grown = new.get("n_samples", 0) > old.get("n_samples", new.get("n_samples", 0))
+    if new.get("sampling") != "lhs" or old.get("sampling") != "lhs" or not grown:
+        return ""
+    return (
+        " (a Latin hypercube's strata, and so all its samples, depend on their "
+        "number: its store cannot be extended to more samples; run the larger "
+        "study in a new folder, or sample by another method, whose stores extend)"
+    )
 
 
 def _version_change(existing: dict, manifest: dict) -> str:
