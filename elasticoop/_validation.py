@@ -68,6 +68,8 @@ def as_float_array(
             raise ValueError(not_numbers) from None
         if np.iscomplexobj(raw):  # the cast would drop the imaginary part
             raise ValueError(f"{name} must be real, got {_show(raw)}")
+        if raw.dtype.kind in "US":  # text, which the cast would read as numbers
+            raise ValueError(not_numbers)
         try:
             arr = raw.astype(np.float64)
         except (TypeError, ValueError):

@@ -328,6 +328,16 @@ BAD_DYNAMICS = {
         lambda: eo.damping_forces(MODEL, Y, "fast"),
         "damping_forces.ydot must be an array of numbers",
     ),
+    # numbers written as text are text, as in a scenario file (before: read as
+    # the numbers they spell)
+    "a mass as text": (
+        lambda: eo.RigidBody("2", (1e-3, 1e-3, 1e-3)),
+        "RigidBody.mass must be an array of numbers, got '2'",
+    ),
+    "an inertia entry as text": (
+        lambda: eo.RigidBody(2.0, ("1e-3", 1e-3, 1e-3)),
+        r"RigidBody.inertia must be an array of numbers, got \('1e-3'",
+    ),
     "stiffness of a flat state": (
         lambda: MODEL.stiffness_matrix(np.zeros((2, 6))),
         r"MobileModel.stiffness_matrix.y must have shape \(3, 6\), got shape \(2, 6\)",
