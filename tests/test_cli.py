@@ -358,8 +358,11 @@ def test_snapshots_outside_the_time_span_exit_2_before_simulating(tmp_path, caps
     code = main(["run", str(path), "-o", str(tmp_path / "out"), "--snapshots", "9"])
     assert code == 2
     err = capsys.readouterr().err
-    assert "--snapshots: 9 s lie outside" in err and "Traceback" not in err
+    assert "--snapshots: 9 s lies outside" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+    argv = ["run", str(path), "-o", str(tmp_path / "out"), "--snapshots", "9", "-2"]
+    assert main(argv) == 2
+    assert "--snapshots: 9 s, -2 s lie outside" in capsys.readouterr().err
 
 
 def test_unusable_cache_folder_exits_2(tmp_path, monkeypatch, capsys):

@@ -191,8 +191,9 @@ def check_options(scenario, args) -> None:
     outside = [t for t in times if not t0 <= t <= t1]
     if outside:
         raise UserError(
-            f"--snapshots: {', '.join(f'{t:g}' for t in outside)} s lie outside the "
-            f"scenario's time span, {t0:g} to {t1:g} s"
+            f"--snapshots: {', '.join(f'{t:g} s' for t in outside)} "
+            f"{'lies' if len(outside) == 1 else 'lie'} outside the scenario's time "
+            f"span, {t0:g} to {t1:g} s"
         )
 
 

@@ -523,8 +523,12 @@ def levenberg_marquardt(
             for x in (
                 trace.reason,
                 f"{int(np.sum(at_bound))} "
-                f"{'parameter' if int(np.sum(at_bound)) == 1 else 'parameters'} "
-                f"set at the lower end of their range (at_bound)",
+                + (
+                    "parameter set at the lower end of its range"
+                    if int(np.sum(at_bound)) == 1
+                    else "parameters set at the lower end of their range"
+                )
+                + " (at_bound)",
             )
             if x
         )
