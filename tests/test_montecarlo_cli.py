@@ -261,6 +261,8 @@ def test_montecarlo_runs_resumes_refuses_and_summarises(tmp_path, capsys):
         assert int(n) == 4 and float(low) <= float(p) <= float(high)
     assert {c for _, c, *_ in printed} == {"beam-left", "beam-right"}
     assert "sensitivity (Spearman rank correlation" in out
+    # with its chance level: over 4 samples 1.96 / sqrt(3) = 1.13, above any |rho|
+    assert "peak_force[beam-left] (n = 4, chance below 1.13): " in out
     summary = json.loads((store / "summary" / "summary.json").read_text())
     peak = summary["outputs"]["peak_force"]["elements"]["beam-left"]
     assert peak["mean"] == pytest.approx(float(ds.peak_force[:, 0].mean()))

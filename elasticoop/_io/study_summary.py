@@ -3,6 +3,7 @@ outputs without a time axis, exceedance probabilities of their thresholds (with
 Wilson intervals) and a rank-correlation sensitivity ranking; as a JSON-able
 dictionary and as text."""
 
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -164,14 +165,21 @@ def format_study_report(report: dict, title: str = "") -> str:
                     f"to {p['upper']:.4f}, n = {p['n']})"
                 )
     ranked = [
-        (element_name(name, label), e["rank_correlation"])
+        (element_name(name, label), e["rank_correlation"], e["n"])
         for name, entry in report["outputs"].items()
         for label, e in entry.get("elements", {}).items()
         if e.get("rank_correlation")
     ]
     if ranked:
-        lines.append("sensitivity (Spearman rank correlation with the parameters):")
-        for what, rho in ranked:
+        lines.append(
+            "sensitivity (Spearman rank correlation with the parameters; over n "
+            "samples of independent quantities |rho| stays below 1.96/sqrt(n - 1) "
+            "95 % of the time):"
+        )
+        for what, rho, n in ranked:
             shown = list(rho.items())[:SHOWN_SENSITIVITIES]
-            lines.append(f"  {what}: " + ", ".join(f"{p} {v:+.2f}" for p, v in shown))
+            lines.append(
+                f"  {what} (n = {n}, chance below {1.96 / math.sqrt(n - 1):.2f}): "
+                + ", ".join(f"{p} {v:+.2f}" for p, v in shown)
+            )
     return "\n".join(lines)
