@@ -155,7 +155,9 @@ def test_step_budget_must_be_an_integer_in_range(tmp_path, capsys):
         text = TINY.replace("[time]", f"[solver]\nmax_steps = {value}\n[time]")
         _rejected(tmp_path, capsys, text, "table [solver], key 'max_steps'", words)
     for value in (10**30, 0):
-        with pytest.raises(ValueError, match=r"simulate\.max_steps must be a positive"):
+        with pytest.raises(
+            ValueError, match=r"SimulationOptions\.max_steps must be a positive"
+        ):
             eo.SimulationOptions(max_steps=value)
     assert eo.SimulationOptions(max_steps=2**31 - 1).max_steps == 2**31 - 1
 

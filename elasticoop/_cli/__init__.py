@@ -20,7 +20,7 @@ from collections.abc import Sequence
 # in the order `elasticoop --help` lists them.
 COMMANDS = {
     "run": "simulate a scenario file and write results and plots",
-    "check": "validate scenario files (no simulation)",
+    "check": "validate scenario and study files (no simulation)",
     "demo": "run the built-in scenario and print a summary (the default)",
     "examples": "list the example scenarios, or copy them to a folder",
     "modes": "static equilibrium, natural frequencies and mode shapes",

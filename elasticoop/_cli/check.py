@@ -1,6 +1,7 @@
 """`elasticoop check FILE...`: validate scenario files, and Monte Carlo study files,
 without simulating."""
 
+import os
 import sys
 import tomllib
 
@@ -9,6 +10,7 @@ import numpy as np
 from .._config import ScenarioError
 from .._config.limits import (
     MAX_OUTPUT_BYTES,
+    MAX_SCENARIO_FILE_BYTES,
     format_bytes,
     output_bytes,
     run_files_bytes,
@@ -91,11 +93,15 @@ def _is_study_file(path: str) -> bool:
     one, or a TOML file with a `[sampling]` table (a scenario file has none)."""
     if str(path).endswith(".study.toml"):
         return True
+    # (whatever cannot be read, or is too large to, is left to the scenario's
+    # loader, which names the problem)
     try:
-        with open(path, "rb") as file:
-            return "sampling" in tomllib.load(file)
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
-        return False  # (the scenario's loader names the problem)
+        if os.path.getsize(path) > MAX_SCENARIO_FILE_BYTES:
+            return False
+        with open(path, encoding="utf-8-sig") as file:
+            return "sampling" in tomllib.loads(file.read())
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError):
+        return False
 
 
 def study_lines(study_file) -> list[str]:
