@@ -70,11 +70,9 @@ def _spread(value):
     except ValidationError as err:
         problems = []
         for e in err.errors():
-            where = "".join(f"[{p}]" for p in e["loc"] if isinstance(p, int))
-            where = f"entry {where}" if where else ""
-            problems.append(
-                f"{where}: {message_of(dict(e))}" if where else message_of(dict(e))
-            )
+            message = message_of(dict(e))
+            index = "".join(f"[{p}]" for p in e["loc"] if isinstance(p, int))
+            problems.append(f"entry {index}: {message}" if index else message)
         raise ValueError("; ".join(problems)) from None
 
 
