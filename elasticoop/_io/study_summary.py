@@ -5,6 +5,7 @@ dictionary and as text."""
 
 import math
 from collections.abc import Mapping, Sequence
+from statistics import NormalDist
 
 import numpy as np
 import xarray as xr
@@ -171,15 +172,18 @@ def format_study_report(report: dict, title: str = "") -> str:
         if e.get("rank_correlation")
     ]
     if ranked:
+        # (Spearman's rho of independent quantities: variance 1/(n - 1), normal
+        # for large n)
+        z = NormalDist().inv_cdf(0.5 + CONFIDENCE / 2)
         lines.append(
             "sensitivity (Spearman rank correlation with the parameters; over n "
-            "samples of independent quantities |rho| stays below 1.96/sqrt(n - 1) "
-            "95 % of the time):"
+            f"samples of independent quantities |rho| stays below {z:.2f}/sqrt(n - 1) "
+            f"{CONFIDENCE:.0%} of the time):"
         )
         for what, rho, n in ranked:
             shown = list(rho.items())[:SHOWN_SENSITIVITIES]
             lines.append(
-                f"  {what} (n = {n}, chance below {1.96 / math.sqrt(n - 1):.2f}): "
+                f"  {what} (n = {n}, chance below {z / math.sqrt(n - 1):.2f}): "
                 + ", ".join(f"{p} {v:+.2f}" for p, v in shown)
             )
     return "\n".join(lines)
