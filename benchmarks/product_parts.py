@@ -42,9 +42,24 @@ need not add up to the whole (leaving a part out also changes what XLA fuses
 around it), and the `rebuilt` row shows how far the rebuilt field's own times stand
 from the library's.
 
+`structured_inertial`: the rebuilt field with the inertial part's angular rows as
+a `jax.custom_jvp` whose tangent rule is written in the structure of Euler's
+equations instead of differentiating the library's expressions (the cofactors of
+$L_\\omega$, the velocity terms). With $\\tau = L_\\omega^{-T} r$ the body-frame
+moment of the right-hand side $r$,
+$\\alpha = I^{-1}(\\tau - \\omega\\times I\\omega)$ and
+$\\ddot{\\mathcal{A}} = L_\\omega^{-1}(\\alpha - \\dot L_\\omega\\dot{\\mathcal{A}})$,
+the tangent is
+$L_\\omega^{-1}(d\\alpha - d(\\dot L_\\omega\\dot{\\mathcal{A}})
+- dL_\\omega\\,\\ddot{\\mathcal{A}})$: one more solve with the factors the
+value already has. It is checked against the library as the rebuilt field is
+(`check_structured_inertial`, at a state where the bodies turn) and timed as the
+variants are: what a product written by hand for the largest part would gain.
+
 At smoke size (`--quick`): 100 evaluations per loop, one round.
 """
 
+import functools
 import re
 import sys
 from pathlib import Path
@@ -69,7 +84,12 @@ from gradients import (  # noqa: E402
 import elasticoop as eo  # noqa: E402
 from elasticoop import _lagrange, _simulate  # noqa: E402
 from elasticoop._forces import check_force  # noqa: E402
-from elasticoop._mass_blocks import FactoredMassBlocks  # noqa: E402
+from elasticoop._mass_blocks import (  # noqa: E402
+    FactoredMassBlocks,
+    _cofactors,
+    _sum,
+    _times,
+)
 
 PARTS = ("restoring", "inertial", "applied")
 WIDTH = 8  # parameter sets under `vmap`
@@ -90,11 +110,122 @@ def inertial_accelerations(model, y, ydot, rhs):
     return jnp.stack(blocks.solve(b), -1)
 
 
+def _by_rows(L, x):
+    """$L x$ for the rows `L` of a 3x3 matrix (entries arrays or structural floats)."""
+    return tuple(_sum(*(_times(L[r][c], x[c]) for c in range(3))) for r in range(3))
+
+
+def _by_columns(L, x):
+    """$L^T x$."""
+    return tuple(_sum(*(_times(L[r][c], x[r]) for r in range(3))) for c in range(3))
+
+
+def _cross(a, b):
+    return tuple(a[(k + 1) % 3] * b[(k + 2) % 3] - a[(k + 2) % 3] * b[(k + 1) % 3]
+                 for k in range(3))  # fmt: skip
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def angle_accelerations(rotation, angles, rates, r, inertia):
+    """$\\ddot{\\mathcal{A}}$ of every body from its angles, angle rates, the
+    angular rows $r$ of the right-hand side $G + F - \\partial\\Pi/\\partial Y -
+    \\partial R/\\partial\\dot Y$ and the principal moments (three arrays
+    `(bodies,)` each), in the structure of Euler's equations."""
+    return _angle_accelerations(rotation, angles, rates, r, inertia)[0]
+
+
+def _angle_accelerations(rotation, angles, rates, r, inertia):
+    L = rotation.angular_velocity_rows(angles)
+    C = _cofactors(L)
+    inverse_det = 1.0 / _sum(*(_times(L[0][c], C[0][c]) for c in range(3)))
+
+    def solve_transposed(b):  # L^-T b
+        return tuple(x * inverse_det for x in _by_rows(C, b))
+
+    def solve(e):  # L^-1 e
+        return tuple(x * inverse_det for x in _by_columns(C, e))
+
+    omega, omega_rate = jax.jvp(
+        lambda a: rotation.angular_velocity_components(a, rates), (angles,), (rates,)
+    )
+    spin = tuple(i * w for i, w in zip(inertia, omega, strict=True))
+    tau = solve_transposed(r)
+    alpha = tuple(
+        (t - g) / i for t, g, i in zip(tau, _cross(omega, spin), inertia, strict=True)
+    )
+    acc = solve(tuple(a - w for a, w in zip(alpha, omega_rate, strict=True)))
+    return acc, (L, solve_transposed, solve, omega, spin, tau, alpha)
+
+
+@angle_accelerations.defjvp
+def _angle_accelerations_jvp(rotation, primals, tangents):
+    angles, rates, r, inertia = primals
+    d_angles, d_rates, d_r, d_inertia = tangents
+    acc, (L, solve_transposed, solve, omega, spin, tau, alpha) = _angle_accelerations(
+        rotation, *primals
+    )
+
+    def d_rows(x):  # dL x
+        return jax.jvp(
+            lambda a: rotation.angular_velocity_components(a, x), (angles,), (d_angles,)
+        )[1]
+
+    def d_columns(x):  # dL^T x
+        return jax.jvp(
+            lambda a: _by_columns(rotation.angular_velocity_rows(a), x),
+            (angles,),
+            (d_angles,),
+        )[1]
+
+    def omega_rate_of(a, v):  # (dL/dt) v at angles a, rates v
+        return jax.jvp(
+            lambda b: rotation.angular_velocity_components(b, v), (a,), (v,)
+        )[1]
+
+    d_omega = tuple(
+        x + y
+        for x, y in zip(
+            d_rows(rates), rotation.angular_velocity_components(angles, d_rates)
+        )
+    )
+    d_omega_rate = jax.jvp(omega_rate_of, (angles, rates), (d_angles, d_rates))[1]
+    d_tau = solve_transposed(tuple(x - y for x, y in zip(d_r, d_columns(tau))))
+    d_spin = tuple(
+        di * w + i * dw for di, w, i, dw in zip(d_inertia, omega, inertia, d_omega)
+    )
+    d_gyro = tuple(x + y for x, y in zip(_cross(d_omega, spin), _cross(omega, d_spin)))
+    d_alpha = tuple(
+        (dt - dg - di * a) / i
+        for dt, dg, di, a, i in zip(d_tau, d_gyro, d_inertia, alpha, inertia)
+    )
+    d_acc = solve(
+        tuple(a - w - x for a, w, x in zip(d_alpha, d_omega_rate, d_rows(acc)))
+    )
+    return acc, d_acc
+
+
+def structured_inertial_accelerations(model, y, ydot, rhs):
+    """`inertial_accelerations` with the angular rows by `angle_accelerations`."""
+    q, v = _lagrange._coordinates(y), _lagrange._coordinates(ydot)
+    b = _lagrange._coordinates(rhs)
+    inertia = model.bodies.inertia
+    moments = (inertia[:, 0], inertia[:, 1], inertia[:, 2])
+    angular = angle_accelerations(model.rotation, q[3:6], v[3:6], b[3:6], moments)
+    linear = [x / model.bodies.mass for x in b[0:3]]
+    return jnp.stack(linear + list(angular), -1)
+
+
 def rebuilt(scenario, restoring=True, inertial=True, applied=True):
     """`field_of_parameters(scenario)` rebuilt from the library's pieces, each of
-    the three parts the library's (true) or a stand-in (false)."""
+    the three parts the library's (true) or a stand-in (false); `inertial=
+    "structured"`: the inertial part by `structured_inertial_accelerations`."""
     s = scenario
     force = check_force(s.forces, s.y_init, s.ydot_init, s.ts)
+    accelerations = (
+        structured_inertial_accelerations
+        if inertial == "structured"
+        else inertial_accelerations
+    )
 
     def field(t, x, params):
         model = with_parameters(s.model, params)
@@ -109,12 +240,23 @@ def rebuilt(scenario, restoring=True, inertial=True, applied=True):
             elastic = damping = 1e-3 * (y + ydot) * (params[0][0, 0] + params[1][0, 0])
         rhs = model.gravity_forces() + f - elastic - damping
         if inertial:
-            yddot = inertial_accelerations(model, y, ydot, rhs)
+            yddot = accelerations(model, y, ydot, rhs)
         else:
             yddot = rhs / model.bodies.mass[:, None]
         return _simulate._pack(ydot, yddot, jnp.sum(f * ydot), jnp.sum(damping * ydot))
 
     return field
+
+
+def turned(x):
+    """The packed state `x` with every body's angles and angle rates moved off the
+    scenario's (whose bodies do not turn), so that a check exercises the angular
+    terms."""
+    y, ydot, work, dissipated = _simulate._unpack(x)
+    offset = jnp.array([0.1, -0.2, 0.3])
+    y = y.at[:, 3:].add(offset)
+    ydot = ydot.at[:, 3:].add(2.0 * offset[::-1])
+    return _simulate._pack(y, ydot, work, dissipated)
 
 
 def check_rebuilt(library, field, t0, x0, x_bar0, params) -> dict:
@@ -235,7 +377,13 @@ def run(quick: bool = False) -> dict:
     library = field_of_parameters(s)
     fields = {"library": library, "rebuilt": rebuilt(s)}
     fields |= {f"without_{p}": rebuilt(s, **{p: False}) for p in PARTS}
+    fields["structured_inertial"] = rebuilt(s, inertial="structured")
     check = check_rebuilt(library, fields["rebuilt"], t0, x0, x_bar0, params)
+    # (the scenario's bodies do not turn: checked where they do, with a cotangent
+    # in the angular rows)
+    check_structured = check_rebuilt(
+        library, fields["structured_inertial"], t0, turned(x0), turned(x_bar0), params
+    )
 
     calls, ops = {}, {}
     for tag, width, args in (("single", None, params), ("vmap", WIDTH, sets)):
@@ -293,6 +441,7 @@ def run(quick: bool = False) -> dict:
         f"(stiffness, damping); single set and vmap over {WIDTH} sets; "
         f"{n_evals} evaluations per loop, best of {rounds} rounds",
         "check": check,
+        "check_structured_inertial": check_structured,
         "single": {"sets": 1, "rows": rows("single")},
         "vmap": {"sets": WIDTH, "rows": rows("vmap")},
         "linearization": {
