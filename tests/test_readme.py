@@ -235,6 +235,10 @@ def test_identification(readme):
     assert not np.any(result.held)
     assert "marginal, NOT IDENTIFIABLE" in result.report()
     np.testing.assert_allclose(leaves(result.model), result.estimate)
+    # and they keep the model's values (to the rounding of the fit's log
+    # coordinates), not the equation-error start's fit to the noise
+    start = leaves(ns["model"])
+    np.testing.assert_allclose(result.estimate[~ok], start[~ok], rtol=1e-14)
 
 
 def test_readme_is_short():

@@ -16,7 +16,7 @@ from .._custom_types import Validated
 from .._naming import body_names as checked_body_names
 from .._options import GIMBAL_TOL, LINK_TOL, SimulationOptions
 from .._status import Status
-from .equation_error import equation_error
+from .equation_error import estimate_by_equation_error
 from .experiment import check_experiments
 from .initial_state import fitted_parts, initial_rule, initial_state_names
 from .misfit import MISFIT_THRESHOLD, misfit_check
@@ -104,9 +104,9 @@ def identify(
       optimiser, e.g. `optax.adam(1e-2)`.
     - `init`: `"equation_error"` (default) or `"model"`. With
       `"equation_error"` the fit starts from the `equation_error` estimate
-      (entries outside the transform's range, and stiffnesses and dampings
-      beyond what the samples resolve, `plausible.unresolved`, taken from the
-      model) when its
+      (entries it does not determine by the thresholds below, entries outside
+      the transform's range, and stiffnesses and dampings beyond what the
+      samples resolve, `plausible.unresolved`, taken from the model) when its
       simulated loss is not above that of the model's values, and from the
       model's values otherwise: with noisy data the differentiated samples can
       spoil the linear estimate, and the start that fits better is kept (a note
@@ -290,19 +290,29 @@ def identify(
     candidates = []  # (label, parameters), evaluated by their simulated loss
     if init == "equation_error":
         try:
-            estimated = equation_error(
+            estimated, undetermined = estimate_by_equation_error(
                 model,
                 experiments,
                 where,
                 window=window,
                 polyorder=polyorder,
                 mask=mask,
+                rcond=rcond,
+                max_relative_stderr=max_relative_stderr,
             )
             guess = free.current(estimated)
         except ValueError as err:  # e.g. too many missing samples to differentiate
             notes.append(f"no equation-error start ({err}); started from the model")
             guess = None
         if guess is not None:
+            if np.any(undetermined):
+                notes.append(
+                    "equation-error estimate not determined by the samples for "
+                    + ", ".join(_names(free.names, undetermined))
+                    + " (a null direction, or a relative standard error above "
+                    + f"{max_relative_stderr:.0%} in the linear fit); took the "
+                    "model's values there"
+                )
             guess, outside = _within_range(free, guess, start)
             if outside:
                 notes.append(
