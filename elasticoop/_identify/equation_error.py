@@ -122,7 +122,7 @@ def estimate_by_equation_error(
     `max_relative_stderr`, as `identify` flags its estimates."""
     experiments = check_experiments(model, experiments)
     free = free_parameters(model, where, "identity", mask)
-    p0 = jnp.asarray(free.current(model))
+    p0 = np.asarray(free.current(model), dtype=np.float64)
     blocks, rhs = [], []
     for k, e in enumerate(experiments):
         y, ydot, yddot = motion_estimates(e, window, polyorder)
@@ -136,7 +136,7 @@ def estimate_by_equation_error(
         e0, A = _affine_system(
             model,
             free,
-            p0,
+            jnp.asarray(p0),
             jnp.asarray(np.asarray(e.ts)[keep]),
             jnp.asarray(y[keep]),
             jnp.asarray(ydot[keep]),
@@ -146,7 +146,6 @@ def estimate_by_equation_error(
         blocks.append(np.asarray(A))
         rhs.append(np.asarray(e0))
     A, e0 = np.concatenate(blocks), np.concatenate(rhs)
-    p0 = np.asarray(p0)
     scale = np.where(p0 != 0, np.abs(p0), 1.0)
     p = _solved(A, e0, p0, scale, np.ones(p0.shape, bool))
     with warnings.catch_warnings():  # (non-finite input: nothing is held)
