@@ -37,8 +37,13 @@ from ._integrate import (
     integrate,
     locate_event,
     rms_norm,
+    stability_radius,
 )
-from ._lagrange import accelerations, constrained_accelerations
+from ._lagrange import (
+    accelerations,
+    constrained_accelerations,
+    linear_rate_bound,
+)
 from ._models import AbstractElasticModel, MobileModel
 from ._motion import PrescribedMotion
 from ._options import SimulationOptions, check_initial_step, resolve_options
@@ -139,6 +144,13 @@ def simulate(
     **Returns:** a `Trajectory`. Differentiable with respect to every array in the
     model, the initial state and the forces (`event_time`, where a run stopped
     early, is not differentiated), and `jax.vmap`-able over any of them.
+
+    No step is longer than the solver's stability radius over a bound of the rates
+    of the motion linearized at the start (`_integrate.stability`): where nothing
+    moves, as at rest in an equilibrium, the error control would otherwise let the
+    steps grow until the unseen fast modes are unstable, and the derivatives, which
+    follow them, would be wrong by orders of magnitude. An explicit solver's step
+    is bounded so; an implicit one's is not.
 
     A run stops at once, with its own `Status`, at NaN or inf in the state, the
     forces or the step size (`NONFINITE`), when the step size collapses on finite
@@ -359,6 +371,22 @@ def _of_state(
     return condition(t, _unpack(state)[0], args)
 
 
+def _stable_step(
+    model: AbstractElasticModel, y: State, solver: diffrax.AbstractSolver
+) -> Scalar:
+    """The longest step `simulate` takes: the solver's stability radius over a
+    bound of the rates of the motion linearized at the start (`linear_rate_bound`;
+    `_integrate.stability` says why), `inf` where there is none (no elastic or
+    damping force, an implicit solver, or a start that is not finite). Held
+    constant under differentiation: a step size has no derivative."""
+    radius = stability_radius(solver)
+    if not np.isfinite(radius):
+        return jnp.asarray(jnp.inf, y.dtype)
+    rate = linear_rate_bound(jax.lax.stop_gradient(model), jax.lax.stop_gradient(y))
+    ok = jnp.isfinite(rate) & (rate > 0)
+    return jnp.where(ok, radius / jnp.where(ok, rate, 1.0), jnp.inf)
+
+
 def _regularity(model: AbstractElasticModel, y: State) -> BodyScalars:
     return jax.vmap(model.rotation.regularity)(y[:, 3:])
 
@@ -471,7 +499,9 @@ def _solve(
     # No root finder: the solve ends at the end of the step in which a condition
     # changed sign, and `locate_event` finds the crossing in that step.
     controller: diffrax.AbstractAdaptiveStepSizeController
-    controller = diffrax.PIDController(rtol=rtol, atol=atol, norm=rms_norm)
+    controller = diffrax.PIDController(
+        rtol=rtol, atol=atol, norm=rms_norm, dtmax=_stable_step(model, y_start, solver)
+    )
     jump_ts = jump_times(force)
     if jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, jump_ts=jump_ts)

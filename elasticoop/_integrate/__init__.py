@@ -7,6 +7,7 @@
 - `controller.StopFailedSteps`: the step-size controller (a clean stop where no step
   can succeed, a record of the steps); `error_norm.rms_norm`: its error norm.
 - `events.locate_event`: where in its last step a run stopped.
+- `stability.stability_radius`: how long a step of a method may be and stay stable.
 - `outcome.Outcome`: what a solve returns.
 """
 
@@ -23,3 +24,4 @@ from .error_norm import rms_norm as rms_norm
 from .events import locate_event as locate_event
 from .outcome import Outcome as Outcome
 from .solve import integrate as integrate
+from .stability import stability_radius as stability_radius
