@@ -7,7 +7,11 @@ as `rtol=1e-8` are meaningless in float32.
 
 import typing
 
-from ._lazy import lazy_attributes as _lazy_attributes, use_float64 as _use_float64
+from ._lazy import (
+    lazy_attributes as _lazy_attributes,
+    lazy_names as _lazy_names,
+    use_float64 as _use_float64,
+)
 from ._version import __version__ as __version__
 
 _use_float64()
@@ -146,3 +150,5 @@ if typing.TYPE_CHECKING:
 
 
 __getattr__, __dir__ = _lazy_attributes(__name__, __file__)
+# `from elasticoop import *`: the public names, the same list
+__all__ = sorted(_lazy_names(__file__))

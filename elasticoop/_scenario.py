@@ -186,12 +186,21 @@ class Scenario(eqx.Module):
 
     def simulate(self, **overrides: Any) -> Trajectory:
         """Run `elasticoop.simulate` with this scenario's model, initial state,
-        times, forces and `options`; keyword arguments override them
-        (e.g. `progress_meter=diffrax.TqdmProgressMeter()` where supported)."""
-        kwargs: dict[str, Any] = dict(forces=self.forces, options=self.options)
-        if self.prescribed is not None:
-            kwargs["prescribed"] = self.prescribed.motion(self.ts)
+        times, forces and `options`; keyword arguments of `simulate` override
+        them (`model=`, `y_init=`, `ydot_init=`, `ts=`, `forces=`, `options=`, or
+        e.g. `progress_meter=diffrax.TqdmProgressMeter()`). The prescribed motion
+        follows the times the run takes."""
+        kwargs: dict[str, Any] = dict(
+            model=self.model,
+            y_init=self.y_init,
+            ydot_init=self.ydot_init,
+            ts=self.ts,
+            forces=self.forces,
+            options=self.options,
+        )
         kwargs.update(overrides)
+        if self.prescribed is not None and "prescribed" not in overrides:
+            kwargs["prescribed"] = self.prescribed.motion(kwargs["ts"])
         from ._simulate import simulate  # the engine, imported when a run needs it
 
-        return simulate(self.model, self.y_init, self.ydot_init, self.ts, **kwargs)
+        return simulate(**kwargs)

@@ -157,7 +157,9 @@ def simulate(
     values (`SOLVER_FAILED`), and when it reaches a time outside the samples of a
     `SampledForce` (`OUTSIDE_FORCE_SAMPLES`). Traced inputs that are not finite are
     reported the same way rather than raised, so that in a batch one bad element
-    never affects the others.
+    never affects the others, and so is a traced model whose values its
+    constructor would refuse (`INVALID_MODEL`: not simulated; for an
+    `ImmobileModel` the definiteness of K and D is not checked there).
     """
     if not isinstance(model, AbstractElasticModel):
         raise ValueError(
@@ -371,6 +373,24 @@ def _of_state(
     return condition(t, _unpack(state)[0], args)
 
 
+def _traced_admissible(model: AbstractElasticModel) -> Array:
+    """`model.admissible()` without its matrix decompositions: the bodies, gravity
+    and a `MobileModel`'s parameters in range and finite, an `ImmobileModel`'s K,
+    D and Y_0 finite (their definiteness needs an eigenvalue decomposition, which
+    is left to construction and to Monte Carlo draws). A concrete model was
+    checked whole before."""
+    np_ = xp(model.gravity)
+    valid = (
+        model.bodies.admissible() & np_.isfinite(model.gravity) & (model.gravity >= 0)
+    )
+    if isinstance(model, MobileModel):
+        return jnp.asarray(valid & model.elastic_admissible())
+    leaves = [x for x in jax.tree.leaves(model) if eqx.is_inexact_array(x)]
+    return jnp.asarray(
+        valid & jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+    )
+
+
 def _stable_step(
     model: AbstractElasticModel, y: State, solver: diffrax.AbstractSolver
 ) -> Scalar:
@@ -452,7 +472,8 @@ def _solve(
     start_finite = jnp.isfinite(y_init).all(axis=1) & jnp.isfinite(ydot_init).all(
         axis=1
     )
-    nonfinite0 = ~jnp.all(start_finite)
+    invalid0 = ~_traced_admissible(model)
+    nonfinite0 = ~invalid0 & ~jnp.all(start_finite)
     reg0 = _regularity(model, y_init)
     singular0 = ~nonfinite0 & jnp.any(jnp.abs(reg0) < gimbal_tol)
     interval = sampled_interval(force)
@@ -466,7 +487,7 @@ def _solve(
         shortest0 = jnp.argmin(margin0)
     else:
         collapsed0, shortest0 = jnp.array(False), jnp.asarray(-1)
-    halt = nonfinite0 | singular0 | collapsed0 | before_samples0
+    halt = invalid0 | nonfinite0 | singular0 | collapsed0 | before_samples0
     # The signed measure keeps its initial sign until the singularity is crossed,
     # so `side * measure - tol` changes sign even when one step jumps the band.
     side = jnp.where(reg0 < 0, -1.0, 1.0)
@@ -583,6 +604,7 @@ def _solve(
     )
     status = jnp.select(
         [
+            invalid0,
             nonfinite0,
             singular0,
             collapsed0,
@@ -595,6 +617,7 @@ def _solve(
             ~(event_hit | (sol.result == diffrax.RESULTS.successful)),
         ],
         [
+            Status.INVALID_MODEL,
             Status.NONFINITE,
             Status.GIMBAL_LOCK,
             Status.LINK_COLLAPSED,

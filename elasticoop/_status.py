@@ -17,6 +17,9 @@ class Status(enum.IntEnum):
     NONFINITE = 5
     # the run reached a time outside the samples of a `SampledForce`
     OUTSIDE_FORCE_SAMPLES = 6
+    # a traced model its constructor would refuse (a mass, moment, stiffness or
+    # damping out of range): not simulated
+    INVALID_MODEL = 7
 
 
 def status_message(traj, body_names=None, connection_names=None) -> str:
@@ -65,6 +68,14 @@ def status_message(traj, body_names=None, connection_names=None) -> str:
             f"NaN or inf stopped the run at t = {t:.9g} s: {where} are not finite "
             f"there; check the forces (a force callable must return finite values) "
             f"and the model's parameters"
+        )
+    if status == Status.INVALID_MODEL:
+        return (
+            "the model was not simulated: it has values its constructor refuses (a "
+            "mass or principal moment not positive, the triangle inequality of the "
+            "moments broken, a negative or non-finite stiffness, damping, rest "
+            "length or gravity); such a model reaches simulate only traced, e.g. "
+            "from eqx.tree_at under jax.vmap or jax.jit"
         )
     if status == Status.OUTSIDE_FORCE_SAMPLES:
         return (

@@ -1,7 +1,8 @@
 """The result of `simulate` and the quantities derived from it."""
 
-from collections.abc import Iterable
-from typing import TYPE_CHECKING
+import functools
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import equinox as eqx
 import jax
@@ -15,6 +16,21 @@ from ._status import Status, status_message
 
 if TYPE_CHECKING:
     import xarray
+
+
+_Method = TypeVar("_Method", bound=Callable[..., Any])
+
+
+def _per_trajectory(method: _Method) -> _Method:
+    """`method` of one trajectory, mapped over the batch of a batched one."""
+
+    @functools.wraps(method)
+    def each(self: "Trajectory") -> Any:
+        if jnp.ndim(self.ts) == 1:
+            return method(self)
+        return jax.vmap(method)(self)
+
+    return cast(_Method, each)
 
 
 class Trajectory(eqx.Module):
@@ -41,7 +57,9 @@ class Trajectory(eqx.Module):
     - `n_steps`: the number of solver steps taken, accepted and rejected (what
       `max_steps` bounds).
 
-    Under `jax.vmap` every field gains a leading batch axis.
+    Under `jax.vmap` every field gains a leading batch axis: `traj[i]` is the
+    trajectory of element `i`, and the energy and force methods below return
+    one series per element, with the batch axis first.
     """
 
     ts: Times
@@ -58,7 +76,8 @@ class Trajectory(eqx.Module):
 
     def to_xarray(self, body_names: Iterable[str] | None = None) -> "xarray.Dataset":
         """The trajectory as an `xarray.Dataset` (dims `time`, `body`, `coordinate`),
-        with units and the model parameters as attributes."""
+        with units, the model's parameters as data variables and its kind,
+        convention, gravity and status as attributes (`trajectory_to_xarray`)."""
         # The one import against the layers (results -> files): a convenience
         # method users expect on the result; the converter lives in `_io`.
         from ._io.xarray import trajectory_to_xarray
@@ -69,39 +88,57 @@ class Trajectory(eqx.Module):
     def succeeded(self) -> Bool[Array, "*batch"]:
         return self.status == Status.SUCCESS
 
+    def __getitem__(self, index: Any) -> "Trajectory":
+        """The trajectories `index` of a batch (`jax.vmap` gives every field a
+        leading axis): `traj[0]`, `traj[2:5]`."""
+        if jnp.ndim(self.ts) != 2:
+            raise TypeError(
+                "a single trajectory has no batch axis to index (only the results "
+                "of jax.vmap(simulate) do); index its fields instead, e.g. traj.y[k]"
+            )
+        return jax.tree.map(lambda x: x[index], self)
+
     def _over_time(self, fn, *fields):
         return _map_over_time(fn, *fields)
 
+    @_per_trajectory
     def kinetic_energy(self) -> Times:
         """$T(t)$ [J]."""
         return self._over_time(self.model.kinetic_energy, self.y, self.ydot)
 
+    @_per_trajectory
     def elastic_energy(self) -> Times:
         """$\\Pi(t)$ [J]."""
         return self._over_time(self.model.potential, self.y)
 
+    @_per_trajectory
     def gravity_energy(self) -> Times:
         """$\\sum_i m_i g z_i(t)$ [J]."""
         return self._over_time(self.model.gravity_potential, self.y)
 
+    @_per_trajectory
     def total_energy(self) -> Times:
         """$E = T + \\Pi + \\sum_i m_i g z_i$ [J]."""
         return self._over_time(self.model.total_energy, self.y, self.ydot)
 
+    @_per_trajectory
     def dissipated_power(self) -> Times:
         """$2R(Y, \\dot Y)$ [W], the power lost in the dampers."""
         return 2 * self._over_time(self.model.dissipation, self.y, self.ydot)
 
+    @_per_trajectory
     def energy_residual(self) -> Times:
         """$E(t) - E(t_0) - W_F(t) + E_{diss}(t)$: zero up to the solver's error by
         the balance $\\dot E = F\\cdot\\dot Y - 2R$."""
         energy = self.total_energy()
         return energy - energy[0] - self.work + self.dissipated
 
+    @_per_trajectory
     def elastic_forces(self) -> StateSeries:
         """$\\partial\\Pi/\\partial Y$ per body [N, N m], shape `(times, bodies, 6)`."""
         return self._over_time(lambda y: elastic_forces(self.model, y), self.y)
 
+    @_per_trajectory
     def elastic_wrench(self) -> Float[Array, "times connections 6"]:
         """Generalized elastic force of each connection on its first body,
         $-\\partial\\Pi_{ij}/\\partial Y_i$, shape `(times, connections, 6)`
@@ -128,6 +165,11 @@ class Trajectory(eqx.Module):
 
     def message(self) -> str:
         """A sentence describing `status` (for a single, un-batched trajectory)."""
+        if jnp.ndim(self.ts) != 1:
+            raise ValueError(
+                "message() describes one trajectory, and this is a batch (from "
+                "jax.vmap); take one with traj[i]"
+            )
         return status_message(self)
 
 

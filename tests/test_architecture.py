@@ -142,6 +142,11 @@ def test_deferred_names_resolve(package):
     # and `dir` lists nothing else public (before: `typing`, which the package
     # imports for itself)
     assert {n for n in dir(module) if not n.startswith("_")} == set(deferred)
+    if package == "elasticoop":  # and a star import takes the same names
+        assert module.__all__ == sorted(deferred)
+        star: dict = {}
+        exec("from elasticoop import *", star)
+        assert set(star) - {"__builtins__"} == set(deferred)
     with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
         module.not_a_name  # noqa: B018
 

@@ -7,7 +7,7 @@ import matplotlib
 import numpy as np
 import pytest
 import scipy.linalg
-from helpers import UPRIGHT, hold, run_tight, zxz_mass_matrix
+from helpers import UPRIGHT, hold, run_tight, three_body_model, zxz_mass_matrix
 
 import elasticoop as eo
 
@@ -145,3 +145,8 @@ def test_full_configuration_from_free_vector():
     np.testing.assert_allclose(full[0] - lin.y_eq[0], jnp.arange(6.0))
     np.testing.assert_allclose(full[1], lin.y_eq[1])
     jax.block_until_ready(full)
+
+
+def test_modes_of_a_model_that_is_not_linear_is_named():
+    with pytest.raises(ValueError, match=r"modes takes a LinearModel, got MobileModel"):
+        eo.modes(three_body_model())

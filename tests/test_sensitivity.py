@@ -232,6 +232,13 @@ def test_designs_refuse_sample_counts_they_cannot_have():
         _deflection_study(9)
     with pytest.raises(ValueError, match="Sobol' indices need the Saltelli design"):
         mc.sobol_indices(_results("lhs", np.ones((4, 1)), {"y": np.ones(4)}))
+    # a sensitivity design names its own argument, not the n_samples it makes
+    nominal = _deflection_study(8)
+    with pytest.raises(ValueError, match=r"base_samples = 10: .* e\.g\. 8 or 16"):
+        mc.sensitivity_study(nominal, "sobol", base_samples=10)
+    with pytest.raises(ValueError, match="base_samples must be a positive integer"):
+        mc.sensitivity_study(nominal, "dgsm", base_samples=0)
+    assert mc.sensitivity_study(nominal, "morris", base_samples=10).n_samples == 30
 
 
 @pytest.mark.slow  # two runs of the deflection study's program (the test above's)

@@ -90,7 +90,8 @@ def linearize(
 
     **Arguments:** the model, the configuration `(bodies, 6)`, and the bool
     `(bodies, 6)` mask of prescribed coordinates (`None`: all free); `body_names`
-    name the coordinates in `LinearModel.names` (default `body0`, `body1`, ...).
+    name the coordinates in `LinearModel.names`, `<body>.<coordinate>` (default
+    bodies `object`, `contact1`, ...: `object.x`, ..., `contact1.psi`).
     """
     n = model.n_bodies
     y_eq = jnp.asarray(as_float_array(y_eq, "y_eq", (n, 6)))

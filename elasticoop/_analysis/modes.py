@@ -4,6 +4,7 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Float, Inexact
 
+from .._custom_types import Validated
 from .linear import LinearModel
 
 
@@ -54,7 +55,7 @@ class Modes(eqx.Module):
         return "\n".join(lines)
 
 
-def modes(linear: LinearModel, rigid_tol: float = 1e-9) -> Modes:
+def modes(linear: Validated[LinearModel], rigid_tol: float = 1e-9) -> Modes:
     """Solve the generalized eigenproblem $K\\phi = \\omega^2 M\\phi$ (SciPy's
     symmetric-definite `eigh`) and the eigenvalues of the state matrix.
 
@@ -63,6 +64,12 @@ def modes(linear: LinearModel, rigid_tol: float = 1e-9) -> Modes:
     """
     import scipy.linalg  # here: loading a scenario imports this module, not SciPy
 
+    if not isinstance(linear, LinearModel):
+        raise ValueError(
+            f"modes takes a LinearModel, got {type(linear).__name__}; linearize "
+            f"the model about an equilibrium first: "
+            f"modes(linearize(model, y_eq, prescribed))"
+        )
     M, C, K = (np.asarray(x) for x in (linear.M, linear.C, linear.K))
     omega2, shapes = scipy.linalg.eigh(K, M)
     top = max(float(np.max(np.abs(omega2))), np.finfo(float).tiny)

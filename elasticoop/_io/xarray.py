@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 import equinox as eqx
 import numpy as np
 
+from .._forces import check_force
 from .._models import ImmobileModel, MobileModel
 from .._naming import (
     body_names as _body_names,
@@ -64,9 +65,10 @@ def trajectory_to_xarray(
     - `connection_names`: names of the connections (default `"<i>-<j>"` with body
       names).
     - `attrs`: extra global attributes.
-    - `forces`: the applied forces of the run (an `AbstractForce`, e.g. a
-      scenario's): adds `applied_force`, $F(t, Y, \\dot Y)$ at the saved samples
-      on every body (zero rows for bodies without a force).
+    - `forces`: the applied forces of the run, in any form `simulate` takes
+      (an array `(m, 6)`, an `AbstractForce` such as a scenario's, or a callable):
+      adds `applied_force`, $F(t, Y, \\dot Y)$ at the saved samples on every body
+      (zero rows for bodies without a force).
     """
     import xarray as xr
 
@@ -209,9 +211,12 @@ def trajectory_to_xarray(
 
 
 def applied_forces(forces, traj) -> np.ndarray:
-    """$F(t, Y, \\dot Y)$ of `forces` (an `AbstractForce`) at the saved samples of
-    `traj`, `(times, bodies, 6)` (NaN where the state is)."""
-    values = np.asarray(_applied(forces, traj.ts, traj.y, traj.ydot))
+    """$F(t, Y, \\dot Y)$ of `forces` (as `simulate` takes them) at the saved
+    samples of `traj`, `(times, bodies, 6)` (NaN where the state is)."""
+    force = check_force(
+        forces, traj.y[0], traj.ydot[0], traj.ts, owner="trajectory_to_xarray: "
+    )
+    values = np.asarray(_applied(force, traj.ts, traj.y, traj.ydot))
     missing = traj.model.n_bodies - values.shape[1]  # 1: no row for the object
     return np.concatenate([np.zeros((len(values), missing, 6)), values], axis=1)
 

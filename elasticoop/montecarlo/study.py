@@ -107,7 +107,7 @@ class Study(eqx.Module):
       and its outputs include that start-up transient.
     - `options`: a `SimulationOptions` (solver, tolerances, step budget and
       singularity thresholds of every sample; default `SimulationOptions()`,
-      Tsit5 at rtol 1e-8, atol 1e-10).
+      Dopri8 at rtol 1e-9, atol 1e-11, as `simulate`'s).
     - `solver`, `rtol`, `atol`, `max_steps`: deprecated spellings of `options`
       (a `DeprecationWarning`; they cannot be combined with it).
     - `body_names`, `connection_names`: labels of the `body` and `connection` axes

@@ -1,6 +1,8 @@
 """A study's sensitivity design: the same study, sampled by the design that an
 estimator needs."""
 
+import numbers
+
 import jax
 import jax.numpy as jnp
 
@@ -29,6 +31,21 @@ def sensitivity_study(
     `study`'s: the key, parameters, outputs, inputs, what each sample starts from
     (`initial`) and the simulation options."""
     sampling = design_of(method, second_order)
+    if (
+        isinstance(base_samples, bool)
+        or not isinstance(base_samples, numbers.Integral)
+        or base_samples < 1
+    ):
+        raise ValueError(
+            f"sensitivity_study: base_samples must be a positive integer, got "
+            f"{base_samples!r}"
+        )
+    if sampling != "morris" and base_samples & (base_samples - 1):
+        below = 1 << (int(base_samples).bit_length() - 1)
+        raise ValueError(
+            f"sensitivity_study: base_samples = {base_samples}: the {method!r} design "
+            f"takes a power of two of base points, e.g. {below} or {2 * below}"
+        )
     d = int(active_entries(study).sum())
     return Study(
         study.inputs.model,
