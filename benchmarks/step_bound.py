@@ -20,7 +20,7 @@ tolerances of `benchmarks/defaults.py`:
   the error control lets the steps grow at rest until the grasps' modes are
   unstable, and the gradient is orders of magnitude off.
 
-Run on a commit before the bound (`git checkout 6fabc33 -- elasticoop`), the
+Run on the commit before the bound (`git checkout a440e54 -- elasticoop`), the
 `steps` and `at_rest` parts measure the code without it (the rest needs the bound).
 At smoke size (`--quick`): the first 0.3 s of the scenario, Dopri8 only.
 """
@@ -62,7 +62,10 @@ def exact_rate(model, y) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(A))))
 
 
-def at_rest(options) -> dict:
+def beam_at_rest():
+    """The guide's beam held in its grasps, at rest in the static equilibrium under
+    the holding forces: `(model, y0, holding forces)`. Nothing moves, and the error
+    control sees nothing."""
     beam, grasp = eo.RigidBody(2.0, (0.004, 0.17, 0.17)), eo.RigidBody(0.3, (1e-3,) * 3)
     up = (0.0, np.pi / 2, 0.0)
     rest = jnp.array([[0, 0, 1, *up], [-0.5, 0, 1, *up], [0.5, 0, 1, *up]])
@@ -76,15 +79,20 @@ def at_rest(options) -> dict:
     held = np.zeros((3, 6), bool)
     held[1:] = True
     start = eo.static_equilibrium(model, rest, held)
+    return model, start.y, start.reaction[1:]
+
+
+def at_rest(options) -> dict:
+    model, y0, holding = beam_at_rest()
     ts = jnp.linspace(0.0, 0.3, 7)
 
     def end_x(y):
         run = eo.simulate(
-            model, y, jnp.zeros_like(y), ts, forces=start.reaction[1:], options=options
+            model, y, jnp.zeros_like(y), ts, forces=holding, options=options
         )
         return run.y[-1, 0, 0]
 
-    y0, h = start.y, 1e-6
+    h = 1e-6
     central = float((end_x(y0.at[0, 0].add(h)) - end_x(y0.at[0, 0].add(-h))) / (2 * h))
     grad = float(jax.grad(end_x)(y0)[0, 0])
     return {"grad": grad, "central": central, "rel_diff": abs(grad / central - 1)}

@@ -3,6 +3,9 @@ closed forms, the bound of the linearized rates against the eigenvalues, and the
 derivatives of a run that starts at rest in an equilibrium against central
 differences (before the bound, `jax.grad` gave 1e11 where they give 0.77)."""
 
+import sys
+from pathlib import Path
+
 import diffrax
 import jax
 import jax.numpy as jnp
@@ -14,6 +17,9 @@ from helpers import three_body_model, three_body_state
 import elasticoop as eo
 from elasticoop._integrate.stability import stability_radius
 from elasticoop._lagrange import linear_rate_bound
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from step_bound import beam_at_rest  # noqa: E402  (the benchmark's example)
 
 # the stability radius is found on a grid of radii this fine
 GRID = 0.005
@@ -90,28 +96,9 @@ def test_rate_bound_holds_and_is_close(convention):
         assert bound < 2.0 * exact
 
 
-def _at_rest():
-    """The guide's beam held in its grasps, at rest in the static equilibrium under
-    the holding forces: nothing moves, and the error control sees nothing."""
-    beam, grasp = eo.RigidBody(2.0, (0.004, 0.17, 0.17)), eo.RigidBody(0.3, (1e-3,) * 3)
-    up = (0.0, np.pi / 2, 0.0)
-    rest = jnp.array([[0, 0, 1, *up], [-0.5, 0, 1, *up], [0.5, 0, 1, *up]])
-    grasps = [
-        eo.Connection(
-            0, i, stiffness=(2e4,) * 3 + (40.0,) * 3, damping=(60.0,) * 3 + (0.4,) * 3
-        )
-        for i in (1, 2)
-    ]
-    model = eo.MobileModel([beam, grasp, grasp], grasps).with_unloaded_state(rest)
-    held = np.zeros((3, 6), bool)
-    held[1:] = True
-    start = eo.static_equilibrium(model, rest, held)
-    return model, start.y, start.reaction[1:]
-
-
 @pytest.mark.slow  # three programs: the run, its gradient and its forward mode
 def test_gradients_of_a_run_at_rest_are_the_central_differences():
-    model, y0, holding = _at_rest()
+    model, y0, holding = beam_at_rest()
     ts = jnp.linspace(0.0, 0.3, 7)
 
     def end_x(y, adjoint=None):
