@@ -359,6 +359,15 @@ class PoseTracking(AbstractForce):
 
     def __check_init__(self):
         m = self.y_ref.shape[0] if self.y_ref.ndim == 2 else None
+        rows = self.feedforward.shape[:1] if self.feedforward.ndim == 2 else None
+        if m is not None and rows is not None and rows != (m,):
+            # (which of the two is wrong is not known here: both are named)
+            raise ValueError(
+                f"PoseTracking.y_ref and PoseTracking.feedforward must have one row "
+                f"per manipulator each, got y_ref of shape {self.y_ref.shape} and "
+                f"feedforward of shape {self.feedforward.shape} (the grasps' poses, "
+                f"without the object's row)"
+            )
         fields = ("y_ref", "feedforward", "kp", "kd", "height", "duration", "start")
         shapes = ((m, 6), (m, 6), (6,), (6,), (), (), ())
         for name, shape in zip(fields, shapes, strict=True):

@@ -260,6 +260,12 @@ def _simulate(
         ):
             _check_links_open(model, y_init, options.link_tol)
 
+    # The step bound of a concrete model and start, in a program of its own
+    # (compiled once for each model structure, not into every run's program);
+    # a traced one is bounded inside the run's program.
+    step_bound = None
+    if is_concrete(model) and is_concrete(y_init) and _admissible_start(model, y_init):
+        step_bound = _concrete_step_bound(model, y_init, diffrax_solver)
     traj = _solve(
         model,
         y_init,
@@ -279,6 +285,7 @@ def _simulate(
         batch_loop,
         fallback,
         step_limit,
+        step_bound,
     )
     if throw is False:
         return traj
@@ -407,6 +414,27 @@ def _stable_step(
     return jnp.where(ok, radius / jnp.where(ok, rate, 1.0), jnp.inf)
 
 
+def _admissible_start(model: AbstractElasticModel, y: State) -> bool:
+    """Whether a concrete model and start are simulated (else `_solve` reports
+    them and bounds no step): finite, and the model in range."""
+    return bool(np.all(np.isfinite(np.asarray(y)))) and bool(_traced_admissible(model))
+
+
+def _concrete_step_bound(
+    model: AbstractElasticModel, y: State, solver: diffrax.AbstractSolver
+) -> Array:
+    """`_stable_step` of a concrete model and start, in its own compiled program
+    (one for each model structure and solver)."""
+    return _compiled_step_bound(model, y, solver)
+
+
+@fast_compile_jit
+def _compiled_step_bound(
+    model: AbstractElasticModel, y: State, solver: diffrax.AbstractSolver
+) -> Array:
+    return _stable_step(model, y, solver)
+
+
 def _regularity(model: AbstractElasticModel, y: State) -> BodyScalars:
     return jax.vmap(model.rotation.regularity)(y[:, 3:])
 
@@ -463,6 +491,7 @@ def _solve(
     batch_loop: bool | int = False,
     fallback: bool = False,
     step_limit: Int[Array, ""] | None = None,
+    step_bound: Scalar | None = None,
 ) -> Trajectory:
     # Starts that are not simulated (only possible when traced; concrete ones are
     # refused by `simulate`): NaN or inf in the initial state, a start at the
@@ -520,8 +549,10 @@ def _solve(
     # No root finder: the solve ends at the end of the step in which a condition
     # changed sign, and `locate_event` finds the crossing in that step.
     controller: diffrax.AbstractAdaptiveStepSizeController
+    if step_bound is None:
+        step_bound = _stable_step(model, y_start, solver)
     controller = diffrax.PIDController(
-        rtol=rtol, atol=atol, norm=rms_norm, dtmax=_stable_step(model, y_start, solver)
+        rtol=rtol, atol=atol, norm=rms_norm, dtmax=step_bound
     )
     jump_ts = jump_times(force)
     if jump_ts is not None:

@@ -432,6 +432,15 @@ def _pose_tracking(**change):
         (dict(kp=np.full(3, 1e3)), r"PoseTracking.kp must have shape \(6,\)"),
         (
             dict(feedforward=np.zeros((3, 6))),
+            r"y_ref and PoseTracking.feedforward must have one row per manipulator "
+            r"each, got y_ref of shape \(2, 6\) and feedforward of shape \(3, 6\)",
+        ),
+        (  # the object's row given with the grasps' poses: both named
+            dict(y_ref=np.asarray(Y)),
+            r"got y_ref of shape \(3, 6\) and feedforward of shape \(2, 6\)",
+        ),
+        (
+            dict(feedforward=np.zeros((2, 5))),
             r"PoseTracking.feedforward must have shape \(2, 6\)",
         ),
         (dict(y_ref=np.zeros(6)), r"PoseTracking.y_ref must have shape \(any, 6\)"),
