@@ -58,9 +58,10 @@ def small_budget(monkeypatch):
 def test_all_trials_failing_is_not_convergence(small_budget):
     """From 1e-8 times the stiffness the Levenberg-Marquardt trial points lie
     many orders of magnitude stiffer (steps of 1e4 and more in log space): the
-    stiffness overflows and every trial run stops at once with non-finite states.
-    The fit never moved: it must not say it converged, and the reason must say
-    why the trials failed."""
+    stiffness overflows, and every trial run is refused at once as a model out of
+    range (a stiffness that is not finite: `Status.INVALID_MODEL`). The fit never
+    moved: it must not say it converged, and the reason must say why the trials
+    failed."""
     model, _ = _two_body()
     soft = _with_stiffness(model, 1e-8 * model.stiffness)
     result = identify(
@@ -70,7 +71,7 @@ def test_all_trials_failing_is_not_convergence(small_budget):
     assert result.status == "failed"
     assert result.n_failed_trials == 13
     assert "every trial step (13) failed to simulate" in result.reason
-    assert "(13 stopped with status NONFINITE)" in result.reason
+    assert "(13 stopped with status INVALID_MODEL)" in result.reason
     assert "the loss never moved from the start" in result.reason
     # the start, through u = log p and back
     np.testing.assert_allclose(result.estimate, result.initial, rtol=1e-14)

@@ -69,9 +69,10 @@ class StopFailedSteps(AbstractStepRecorder):
     in `layout` (what `StepwiseAdjoint` replays)."""
 
     controller: diffrax.AbstractAdaptiveStepSizeController
-    # one value, or one for each element of a batch the batch loop integrates
-    min_step: Float[Array, "*batch"]
-    halt: Bool[Array, "*batch"]
+    # each one value, or one for each element of a batch the batch loop
+    # integrates (where it depends on what is batched: the times, the model)
+    min_step: Float[Array, "*times_batch"]
+    halt: Bool[Array, "*start_batch"]
     # the most steps tried (None: the solve's `max_steps` only)
     step_limit: Int[Array, ""] | None
     # `controller`'s, which diffrax reads from the outermost controller
@@ -84,8 +85,8 @@ class StopFailedSteps(AbstractStepRecorder):
     def __init__(
         self,
         controller: diffrax.AbstractAdaptiveStepSizeController,
-        min_step: Float[Array, "*batch"],
-        halt: Bool[Array, "*batch"],
+        min_step: Float[Array, "*times_batch"],
+        halt: Bool[Array, "*start_batch"],
         layout: StepLayout | None = None,
         step_limit: Int[Array, ""] | None = None,
     ):
