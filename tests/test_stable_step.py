@@ -11,7 +11,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.linalg
 from helpers import three_body_model, three_body_state
 
 import elasticoop as eo
@@ -19,7 +18,7 @@ from elasticoop._integrate.stability import stability_radius
 from elasticoop._lagrange import linear_rate_bound
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from step_bound import beam_at_rest  # noqa: E402  (the benchmark's example)
+from step_bound import beam_at_rest, exact_rate  # noqa: E402  (the benchmark's)
 
 # the stability radius is found on a grid of radii this fine
 GRID = 0.005
@@ -63,26 +62,6 @@ def test_stability_radius_bounds_the_growth_on_the_half_disc(solver):
     assert max(beyond) > 1 + 1e-3
 
 
-def _largest_rate(model, y):
-    """max |lambda| of the linearized motion at rest, from the eigenvalues of its
-    first-order form (NumPy)."""
-    n = y.size
-    K = np.asarray(
-        jax.hessian(lambda q: model.potential(q.reshape(y.shape)))(y.ravel())
-    )
-    D = np.asarray(
-        jax.hessian(lambda v: model.dissipation(y, v.reshape(y.shape)))(np.zeros(n))
-    )
-    W = scipy.linalg.block_diag(*np.asarray(eo.mass_matrix(model, y)))
-    A = np.block(
-        [
-            [np.zeros((n, n)), np.eye(n)],
-            [-np.linalg.solve(W, K), -np.linalg.solve(W, D)],
-        ]
-    )
-    return np.max(np.abs(np.linalg.eigvals(A)))
-
-
 @pytest.mark.parametrize("convention", ["zxz", "rpy"])
 def test_rate_bound_holds_and_is_close(convention):
     model = three_body_model(convention)
@@ -90,7 +69,7 @@ def test_rate_bound_holds_and_is_close(convention):
     moved = turned.at[1, :3].add(jnp.array([0.05, -0.03, 0.02]))  # links loaded
     immobile = eo.linearize_mobile(model, three_body_state(convention))
     for m, y in ((model, turned), (model, moved), (immobile, turned)):
-        exact = _largest_rate(m, y)
+        exact = exact_rate(m, y)  # NumPy's eigenvalues of the first-order form
         bound = float(jax.jit(linear_rate_bound)(m, y))
         assert exact <= bound * (1 + 1e-12)
         assert bound < 2.0 * exact
