@@ -260,12 +260,12 @@ def _simulate(
         ):
             _check_links_open(model, y_init, options.link_tol)
 
-    # The step bound of a concrete model and start, in a program of its own
-    # (compiled once for each model structure, not into every run's program);
-    # a traced one is bounded inside the run's program.
+    # The step bound of a concrete model and start (both checked above), in a
+    # program of its own (compiled once for each model structure, not into every
+    # run's program); a traced one is bounded inside the run's program.
     step_bound = None
-    if is_concrete(model) and is_concrete(y_init) and _admissible_start(model, y_init):
-        step_bound = _concrete_step_bound(model, y_init, diffrax_solver)
+    if is_concrete(model) and is_concrete(y_init):
+        step_bound = _compiled_step_bound(model, y_init, diffrax_solver)
     traj = _solve(
         model,
         y_init,
@@ -386,12 +386,12 @@ def _traced_admissible(model: AbstractElasticModel) -> Array:
     D and Y_0 finite (their definiteness needs an eigenvalue decomposition, which
     is left to construction and to Monte Carlo draws). A concrete model was
     checked whole before."""
+    if isinstance(model, MobileModel):  # (no decomposition in its checks)
+        return jnp.asarray(model.admissible())
     np_ = xp(model.gravity)
     valid = (
         model.bodies.admissible() & np_.isfinite(model.gravity) & (model.gravity >= 0)
     )
-    if isinstance(model, MobileModel):
-        return jnp.asarray(valid & model.elastic_admissible())
     leaves = [x for x in jax.tree.leaves(model) if eqx.is_inexact_array(x)]
     return jnp.asarray(
         valid & jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
@@ -414,24 +414,12 @@ def _stable_step(
     return jnp.where(ok, radius / jnp.where(ok, rate, 1.0), jnp.inf)
 
 
-def _admissible_start(model: AbstractElasticModel, y: State) -> bool:
-    """Whether a concrete model and start are simulated (else `_solve` reports
-    them and bounds no step): finite, and the model in range."""
-    return bool(np.all(np.isfinite(np.asarray(y)))) and bool(_traced_admissible(model))
-
-
-def _concrete_step_bound(
-    model: AbstractElasticModel, y: State, solver: diffrax.AbstractSolver
-) -> Array:
-    """`_stable_step` of a concrete model and start, in its own compiled program
-    (one for each model structure and solver)."""
-    return _compiled_step_bound(model, y, solver)
-
-
 @fast_compile_jit
 def _compiled_step_bound(
     model: AbstractElasticModel, y: State, solver: diffrax.AbstractSolver
 ) -> Array:
+    """`_stable_step` of a concrete model and start, in its own compiled program
+    (one for each model structure and solver)."""
     return _stable_step(model, y, solver)
 
 
