@@ -20,14 +20,24 @@ tolerances of `benchmarks/defaults.py`:
   the error control lets the steps grow at rest until the grasps' modes are
   unstable, and the gradient is orders of magnitude off.
 
+- `compile_s`: what the bound adds to a program's compilation where the model is
+  traced (under `jit`, `vmap` or `grad` the bound is part of the run's program):
+  `jax.jit` of the scenario's final pose as a function of the stiffness, Dopri8,
+  with the bound and with `simulate`'s `_stable_step` replaced by no bound, each
+  compiled `rounds` times from a fresh lowering (JAX's caches cleared), the best
+  of them, under `FAST_COMPILE` (the library's outermost programs and the tests')
+  and under XLA's defaults (a user's own `jit`).
+
 Run on the commit before the bound (`git checkout a440e54 -- elasticoop`), the
 `steps` and `at_rest` parts measure the code without it (the rest needs the bound).
-At smoke size (`--quick`): the first 0.3 s of the scenario, Dopri8 only.
+At smoke size (`--quick`): the first 0.3 s of the scenario, Dopri8 only, one round.
 """
 
 import sys
+import time
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,6 +46,8 @@ import scipy.linalg
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import elasticoop as eo  # noqa: E402
+from elasticoop import _simulate  # noqa: E402
+from elasticoop._compile_options import FAST_COMPILE, XLA_DEFAULTS  # noqa: E402
 
 SOLVERS = {
     "dopri8 (default)": eo.SimulationOptions(),
@@ -98,6 +110,44 @@ def at_rest(options) -> dict:
     return {"grad": grad, "central": central, "rel_diff": abs(grad / central - 1)}
 
 
+def compile_seconds(s, ts, rounds: int) -> dict:
+    """Best compilation time [s] of a run's program with a traced model, with and
+    without the bound, under `FAST_COMPILE` and XLA's defaults."""
+    jax.config.update("jax_enable_compilation_cache", False)
+
+    def final_pose(stiffness):
+        model = eqx.tree_at(lambda m: m.stiffness, s.model, stiffness)
+        return eo.simulate(model, s.y_init, s.ydot_init, ts, forces=s.forces).y[-1]
+
+    bounded = _simulate._stable_step
+
+    def unbounded(model, y, solver):
+        return jnp.asarray(jnp.inf, y.dtype)
+
+    best: dict = {}
+    for _ in range(rounds):
+        for options_name, options in (
+            ("fast_compile", FAST_COMPILE),
+            ("xla_defaults", XLA_DEFAULTS),
+        ):
+            for bound_name, stable_step in (
+                ("with_bound", bounded),
+                ("without", unbounded),
+            ):
+                _simulate._stable_step = stable_step
+                try:
+                    jax.clear_caches()
+                    lowered = jax.jit(final_pose).lower(s.model.stiffness)
+                    start = time.perf_counter()
+                    lowered.compile(compiler_options=options)
+                    seconds = time.perf_counter() - start
+                finally:
+                    _simulate._stable_step = bounded
+                key = f"{options_name}, {bound_name}"
+                best[key] = min(best.get(key, np.inf), seconds)
+    return best
+
+
 def run(quick: bool = False) -> dict:
     s = eo.default_scenario()
     ts = s.ts[:31] if quick else s.ts
@@ -128,6 +178,7 @@ def run(quick: bool = False) -> dict:
         "problem": f"default_scenario(), {float(ts[-1]):g} s; the guide's beam at "
         "rest, 0.3 s",
         "rows": rows,
+        "compile_s": compile_seconds(s, ts, 1 if quick else 3),
     }
 
 
