@@ -6,8 +6,10 @@ from importlib.resources.abc import Traversable
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from ._config import load_scenario
+from ._custom_types import Validated
 from ._scenario import Scenario
 
 DEFAULT_EXAMPLE = "beam_lift"
@@ -47,11 +49,21 @@ def load_example(name: str) -> Scenario:
         return load_scenario(path)
 
 
-def default_scenario(n_output: int = 301) -> Scenario:
+def default_scenario(n_output: Validated[int] = 301) -> Scenario:
     """Two manipulators lift a 1 m, 2 kg beam by 0.2 m in 2 s through elastic grasps
     at its ends (3 bodies, 2 connections, ZXZ angles at $\\theta = \\pi/2$, so the
     body x axis is the beam's axis), then hold it for 1 s; read from the packaged
     `scenarios/beam_lift.toml`. `n_output` evenly spaced output samples."""
+    if isinstance(n_output, bool) or not isinstance(n_output, int | np.integer):
+        raise ValueError(
+            f"n_output must be an integer number of output samples, got "
+            f"{n_output!r} ({type(n_output).__name__})"
+        )
+    if n_output < 2:
+        raise ValueError(
+            f"n_output must be at least 2 (the start and the end of the run), got "
+            f"{n_output}"
+        )
     scenario = load_example(DEFAULT_EXAMPLE)
     if n_output != scenario.ts.shape[0]:
         ts = jnp.linspace(scenario.ts[0], scenario.ts[-1], n_output)

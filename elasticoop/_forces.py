@@ -379,6 +379,15 @@ class PoseTracking(AbstractForce):
             raise ValueError(
                 f"PoseTracking.duration must be > 0 [s], got {float(self.duration)!r}"
             )
+        for name in ("kp", "kd"):  # a negative gain drives away from the pose
+            gains = getattr(self, name)
+            if is_concrete(gains) and np.any(np.asarray(gains) < 0):
+                k = int(np.argmax(np.asarray(gains) < 0))
+                raise ValueError(
+                    f"PoseTracking.{name} must be >= 0 in every coordinate, got "
+                    f"{float(gains[k])!r} in coordinate {k} (of x, y, z and the "
+                    f"three angles)"
+                )
 
     def __call__(self, t: TimeLike, y: State, ydot: State) -> Forces:
         lift = jnp.array([[0.0, 0.0, 1.0, 0.0, 0.0, 0.0]])  # (one row, for every grasp)
@@ -401,7 +410,13 @@ def force_admissible(force: AbstractForce | None) -> BoolScalar:
     """Whether a force's values pass its checks of construction other than
     finiteness (which `simulate` reports as `Status.NONFINITE`), traced or not:
     for values changed afterwards, e.g. a Monte Carlo draw. A `PoseTracking` lift
-    needs a positive duration; the other forces have no range to check."""
+    needs a positive duration and gains >= 0; the other forces have no range to
+    check."""
     if isinstance(force, PoseTracking):
-        return xp(force.duration).asarray(force.duration) > 0
+        np_ = xp(force.duration, force.kp, force.kd)
+        return (
+            (np_.asarray(force.duration) > 0)
+            & np_.all(np_.asarray(force.kp) >= 0)
+            & np_.all(np_.asarray(force.kd) >= 0)
+        )
     return True

@@ -74,15 +74,29 @@ class Trajectory(eqx.Module):
     reaction: StateSeries | None = None
     n_steps: Int[Array, ""] | None = None
 
-    def to_xarray(self, body_names: Iterable[str] | None = None) -> "xarray.Dataset":
+    def to_xarray(
+        self,
+        body_names: Iterable[str] | None = None,
+        connection_names: Iterable[str] | None = None,
+        attrs: dict[str, Any] | None = None,
+        forces: Any = None,
+    ) -> "xarray.Dataset":
         """The trajectory as an `xarray.Dataset` (dims `time`, `body`, `coordinate`),
         with units, the model's parameters as data variables and its kind,
-        convention, gravity and status as attributes (`trajectory_to_xarray`)."""
+        convention, gravity and status as attributes: `trajectory_to_xarray(self,
+        ...)`, whose arguments these are (`forces`: the run's applied forces, in
+        any form `simulate` takes, for the variable `applied_force`)."""
         # The one import against the layers (results -> files): a convenience
         # method users expect on the result; the converter lives in `_io`.
         from ._io.xarray import trajectory_to_xarray
 
-        return trajectory_to_xarray(self, body_names=body_names)
+        return trajectory_to_xarray(
+            self,
+            body_names=body_names,
+            connection_names=connection_names,
+            attrs=attrs,
+            forces=forces,
+        )
 
     @property
     def succeeded(self) -> Bool[Array, "*batch"]:

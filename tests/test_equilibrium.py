@@ -1,6 +1,8 @@
 """Static equilibrium: hand-computed spring deflections, linear solve of Appendix A,
 global balance of the reactions, and the under-constrained error."""
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -143,3 +145,17 @@ def test_bad_equilibrium_settings_are_named(settings, message):
     in an `OverflowError`, a negative or NaN tolerance reached the solver)."""
     with pytest.raises(ValueError, match=message):
         eo.static_equilibrium(zero_length_model(), configuration(), GRASPS, **settings)
+
+
+def test_a_traced_model_is_sent_to_rest_state():
+    """`static_equilibrium` reports ranks and missing constraints, which need
+    concrete values: under `grad` it names the traceable `rest_state` instead of
+    failing on a tracer's conversion to NumPy."""
+    model = zero_length_model()
+
+    def lowest_point(gravity):
+        changed = eqx.tree_at(lambda m: m.gravity, model, gravity)
+        return eo.static_equilibrium(changed, configuration(), GRASPS).y[0, 2]
+
+    with pytest.raises(ValueError, match=r"traced model .* elasticoop.rest_state"):
+        jax.grad(lowest_point)(jnp.asarray(G))

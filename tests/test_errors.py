@@ -447,6 +447,12 @@ def _pose_tracking(**change):
         (dict(height=np.nan), "PoseTracking.height must be finite"),
         (dict(duration=0.0), r"PoseTracking.duration must be > 0 \[s\], got 0.0"),
         (dict(duration=-0.2), r"PoseTracking.duration must be > 0 \[s\], got -0.2"),
+        (  # a negative gain drives the grasp away from its pose
+            dict(kp=np.array([1e3, 1e3, -1e3, 10.0, 10.0, 10.0])),
+            r"PoseTracking.kp must be >= 0 in every coordinate, got -1000.0 in "
+            r"coordinate 2",
+        ),
+        (dict(kd=np.full(6, -1.0)), r"PoseTracking.kd must be >= 0 .* coordinate 0"),
     ],
 )
 def test_bad_pose_tracking_is_named(change, match):
@@ -498,3 +504,13 @@ def test_admissible_sees_values_that_are_not_finite():
     stopped = eqx.tree_at(lambda f: f.duration, lift, jnp.asarray(0.0))
     assert not bool(force_admissible(stopped))
     assert not bool(jax.jit(force_admissible)(stopped))
+    # and gains >= 0 (a Monte Carlo draw of a gain below zero is no controller)
+    pushing = eqx.tree_at(lambda f: f.kp, lift, lift.kp.at[4].set(-1.0))
+    assert not bool(force_admissible(pushing))
+    assert not bool(jax.jit(force_admissible)(pushing))
+
+
+@pytest.mark.parametrize("n_output", [0, 1, 2.5, True])
+def test_default_scenario_needs_two_or_more_output_samples(n_output):
+    with pytest.raises(ValueError, match=r"n_output must be"):
+        eo.default_scenario(n_output)

@@ -65,6 +65,16 @@ def test_the_applied_force_may_be_an_array():
     np.testing.assert_array_equal(applied[:, 0], 0.0)  # no row for the object
     with pytest.raises(ValueError, match=r"trajectory_to_xarray: forces must give"):
         eo.trajectory_to_xarray(traj, forces=np.zeros((4, 6)))
+    # the method on the result takes what the function takes
+    named = traj.to_xarray(
+        body_names=["beam", "left", "right"],
+        connection_names=["beam-left", "beam-right"],
+        attrs={"run": "lift"},
+        forces=LIFT,
+    )
+    np.testing.assert_array_equal(named["applied_force"].values, applied)
+    assert list(named["connection"].values) == ["beam-left", "beam-right"]
+    assert named.attrs["run"] == "lift"
 
 
 def test_a_traced_model_out_of_range_is_reported_not_simulated():

@@ -12,7 +12,7 @@ from .._models import AbstractElasticModel
 from .._models.base import numerical_rank
 from .._options import SimulationOptions
 from .._traces import stored_program
-from .._validation import as_float_array
+from .._validation import as_float_array, is_concrete
 from ._common import as_mask, constant_forces
 
 # `args` of the solvers: the model, the guess (holding the prescribed values), the
@@ -113,6 +113,18 @@ def static_equilibrium(
     SimulationOptions(
         rtol=rtol, atol=atol, max_steps=max_steps, owner="static_equilibrium"
     )
+    traced = [
+        name
+        for name, value in (("model", model), ("y_guess", y_guess), ("forces", forces))
+        if not is_concrete(value)
+    ]
+    if traced:
+        raise ValueError(
+            f"static_equilibrium takes concrete values (it reports the rank of the "
+            f"stiffness and the constraints missing), got a traced {traced[0]} "
+            f"(under jit, vmap or grad); elasticoop.rest_state finds the same rest "
+            f"state and can be traced and differentiated"
+        )
     n = model.n_bodies
     y_guess = jnp.asarray(as_float_array(y_guess, "y_guess", (n, 6)))
     mask = as_mask(prescribed, n)
