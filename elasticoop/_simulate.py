@@ -227,12 +227,10 @@ def _simulate(
     if is_concrete(dt0):
         check_initial_step(dt0, "simulate")
     if is_concrete(model) and not bool(model.admissible()):
+        reason = model.refusal() or "a value out of the range of its parameter"
         raise ValueError(
-            "model has values its constructor refuses (a mass or principal moment "
-            "not positive, the triangle inequality of the moments broken, a negative "
-            "stiffness, damping, rest length or gravity, or K or D not symmetric "
-            "positive semidefinite); a model changed with eqx.tree_at is not "
-            "checked again until it is simulated"
+            f"model has values its constructor refuses: {reason} (a model changed "
+            f"with eqx.tree_at is not checked again until it is simulated)"
         )
     n = model.n_bodies
     # Traced non-finite states are reported in `Trajectory.status`, lane by lane.

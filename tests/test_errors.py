@@ -374,13 +374,32 @@ def test_admissible_repeats_the_checks_of_construction():
 
     assert bool(MODEL.admissible())
     inertia, stiffness = MODEL.bodies.inertia, MODEL.stiffness
+    # what is changed, and what `simulate` says of it (the constructor's words)
     changes = {
-        "negative mass": (lambda m: m.bodies.mass, MODEL.bodies.mass.at[1].set(-0.3)),
-        "zero moment": (lambda m: m.bodies.inertia, inertia.at[0, 2].set(0.0)),
-        "triangle": (lambda m: m.bodies.inertia, inertia.at[0].set([0.01, 0.02, 0.04])),
-        "negative stiffness": (lambda m: m.stiffness, stiffness.at[1, 3].set(-1.0)),
-        "negative damping": (lambda m: m.damping, MODEL.damping.at[0, 0].set(-1e-3)),
-        "negative gravity": (lambda m: m.gravity, jnp.asarray(-9.81)),
+        r"body 1: RigidBody.mass must be positive, got -0.3": (
+            lambda m: m.bodies.mass,
+            MODEL.bodies.mass.at[1].set(-0.3),
+        ),
+        r"body 0: RigidBody.inertia must be positive": (
+            lambda m: m.bodies.inertia,
+            inertia.at[0, 2].set(0.0),
+        ),
+        r"body 0: RigidBody.inertia violates the triangle inequality": (
+            lambda m: m.bodies.inertia,
+            inertia.at[0].set([0.01, 0.02, 0.04]),
+        ),
+        r"connection 1: Connection\(0, 2\).stiffness must be >= 0": (
+            lambda m: m.stiffness,
+            stiffness.at[1, 3].set(-1.0),
+        ),
+        r"connection 0: Connection\(0, 1\).damping must be >= 0": (
+            lambda m: m.damping,
+            MODEL.damping.at[0, 0].set(-1e-3),
+        ),
+        r"gravity must be finite and >= 0 \[m/s\^2\], got -9.81": (
+            lambda m: m.gravity,
+            jnp.asarray(-9.81),
+        ),
     }
     admissible = jax.jit(lambda m: m.admissible())
     # traced leaves beside concrete ones
@@ -391,11 +410,11 @@ def test_admissible_repeats_the_checks_of_construction():
         ),
         [True, False],
     )
-    for name, (where, value) in changes.items():
+    for message, (where, value) in changes.items():
         changed = eqx.tree_at(where, MODEL, value)
-        assert not bool(changed.admissible()), name
-        assert not bool(admissible(changed)), name
-        with pytest.raises(ValueError, match="model has values its constructor"):
+        assert not bool(changed.admissible()), message
+        assert not bool(admissible(changed)), message
+        with pytest.raises(ValueError, match=f"constructor refuses: {message}"):
             eo.simulate(changed, Y, Z, TS)
     K = np.diag(np.r_[np.zeros(6), np.full(6, 100.0)])
     y0 = np.tile([0.0, 0, 0, *UP], (2, 1))
@@ -407,6 +426,8 @@ def test_admissible_repeats_the_checks_of_construction():
     for bad in (indefinite, coupled):
         changed = eqx.tree_at(lambda m: m.K, immobile, jnp.asarray(bad))
         assert not bool(changed.admissible())
+        with pytest.raises(ValueError, match=r"refuses: K must be positive semidef"):
+            eo.simulate(changed, y0, np.zeros((2, 6)), TS)
     # only the symmetric part enters the energy: a skew part is no instability
     skew = np.zeros((12, 12))
     skew[7, 8], skew[8, 7] = 5.0, -5.0
@@ -494,7 +515,7 @@ def test_admissible_sees_values_that_are_not_finite():
     assert not bool(broken.admissible())  # (NumPy's eigenvalues fail on NaN)
     assert not bool(jax.jit(lambda m: m.admissible())(broken))
     assert bool(jax.jit(lambda m: m.admissible())(immobile))
-    with pytest.raises(ValueError, match="model has values its constructor"):
+    with pytest.raises(ValueError, match=r"refuses: ImmobileModel.K must be finite"):
         eo.simulate(broken, y0, np.zeros((2, 6)), TS)
     # a force's own range: a lift of no duration
     from elasticoop._forces import force_admissible

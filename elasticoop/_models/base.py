@@ -54,6 +54,28 @@ class AbstractElasticModel(eqx.Module):
             & model.elastic_admissible()
         )
 
+    def refusal(self) -> str | None:
+        """For a concrete model, the message of the first check of construction
+        its values fail (a body's, gravity's, then `elastic_refusal`), `None` if
+        they pass: what `admissible` finds false, said as the constructor says it,
+        for a model whose values were changed afterwards."""
+        model = jax.tree.map(np.asarray, self)
+        for i, (mass, inertia) in enumerate(
+            zip(model.bodies.mass, model.bodies.inertia, strict=True)
+        ):
+            try:
+                RigidBody(mass, inertia)
+            except ValueError as err:
+                return f"body {i}: {err}"
+        gravity = float(model.gravity)
+        if not (np.isfinite(gravity) and gravity >= 0):
+            return f"gravity must be finite and >= 0 [m/s^2], got {gravity!r}"
+        return model.elastic_refusal()
+
+    def elastic_refusal(self) -> str | None:
+        """`refusal` of the elastic parameters (concrete, NumPy leaves)."""
+        return None if bool(self.elastic_admissible()) else "elastic parameters"
+
     @abc.abstractmethod
     def potential(self, y: State) -> Scalar:
         """Elastic potential energy $\\Pi(Y)$ [J]."""

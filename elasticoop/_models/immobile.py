@@ -149,6 +149,19 @@ class ImmobileModel(AbstractElasticModel):
             & np_.all(np_.isfinite(self.y0))
         )
 
+    def elastic_refusal(self) -> str | None:
+        """The first of K, D (their symmetric parts: the skew parts enter neither
+        $\\Pi$ nor $R$) and $Y_0$ that the constructor's checks refuse."""
+        try:
+            for name in ("K", "D"):
+                matrix = np.asarray(getattr(self, name))
+                as_float_array(matrix, f"ImmobileModel.{name}", matrix.shape)
+                check_symmetric_psd(0.5 * (matrix + matrix.T), name)
+            as_float_array(self.y0, "ImmobileModel.y0", self.y0.shape)
+        except ValueError as err:
+            return str(err)
+        return None
+
     def stiffness_matrix(
         self, y: Float[ArrayLike, "bodies 6"] | None = None
     ) -> DofMatrix:

@@ -349,6 +349,23 @@ class MobileModel(AbstractElasticModel):
             & np_.all(np_.isfinite(self.rest_angles))
         )
 
+    def elastic_refusal(self) -> str | None:
+        """The first connection whose values `Connection` refuses, with its
+        message."""
+        for k, (i, j) in enumerate(self.connectivity):
+            try:
+                Connection(
+                    i,
+                    j,
+                    self.stiffness[k],
+                    self.damping[k],
+                    self.rest_length[k],
+                    self.rest_angles[k],
+                )
+            except ValueError as err:
+                return f"connection {k}: {err}"
+        return None
+
     def stiffness_matrix(
         self, y: Float[ArrayLike, "bodies 6"] | None = None
     ) -> DofMatrix:
