@@ -5,16 +5,18 @@ import dataclasses
 from typing import Any
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._custom_types import State, Times, Validated
+from ._custom_types import ArrayInput, State, Times, Validated
 from ._forces import AbstractForce
 from ._models import AbstractElasticModel
 from ._motion import PrescribedMotion, SplineMotion
 from ._naming import default_body_names
 from ._options import SimulationOptions, resolve_options
 from ._trajectory import Trajectory
+from ._validation import as_float_array, check_times
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,10 +113,10 @@ class Scenario(eqx.Module):
     def __init__(
         self,
         name: str,
-        model: AbstractElasticModel,
-        y_init: State,
-        ydot_init: State,
-        ts: Times,
+        model: Validated[AbstractElasticModel],
+        y_init: Validated[ArrayInput],
+        ydot_init: Validated[ArrayInput],
+        ts: Validated[ArrayInput],
         forces: AbstractForce | None,
         body_names: tuple[str, ...] = (),
         connection_names: tuple[str, ...] = (),
@@ -130,11 +132,22 @@ class Scenario(eqx.Module):
         *,
         options: Validated[SimulationOptions | None] = None,
     ):
+        if not isinstance(model, AbstractElasticModel):
+            raise ValueError(
+                f"Scenario.model must be an ImmobileModel or a MobileModel, got "
+                f"{type(model).__name__}"
+            )
         self.name = name
         self.model = model
-        self.y_init = y_init
-        self.ydot_init = ydot_init
-        self.ts = ts
+        # shapes now, as `simulate` would check them (finiteness where concrete)
+        n = model.n_bodies
+        self.y_init, self.ydot_init = (
+            jnp.asarray(
+                as_float_array(value, f"Scenario.{label}", (n, 6), check_traced=False)
+            )
+            for label, value in (("y_init", y_init), ("ydot_init", ydot_init))
+        )
+        self.ts = jnp.asarray(check_times(ts, "Scenario.ts"))
         self.forces = forces
         self.body_names = body_names
         self.connection_names = connection_names

@@ -535,3 +535,21 @@ def test_admissible_sees_values_that_are_not_finite():
 def test_default_scenario_needs_two_or_more_output_samples(n_output):
     with pytest.raises(ValueError, match=r"n_output must be"):
         eo.default_scenario(n_output)
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (dict(y_init=np.zeros((2, 6))), r"Scenario.y_init must have shape \(3, 6\)"),
+        (dict(ydot_init=np.full((3, 6), np.nan)), r"Scenario.ydot_init must be finite"),
+        (dict(ts=[0.0]), r"Scenario.ts needs at least 2 times, got 1"),
+        (dict(ts=[0.0, 0.2, 0.1]), r"Scenario.ts must be strictly increasing"),
+        (dict(model="beam"), r"Scenario.model must be an ImmobileModel or a Mob"),
+    ],
+)
+def test_a_scenario_is_checked_when_it_is_built(change, match):
+    """A wrong shape or time grid is named where the scenario is made, not at its
+    first run."""
+    fields = dict(name="x", model=MODEL, y_init=Y, ydot_init=Z, ts=TS, forces=None)
+    with pytest.raises(ValueError, match=match):
+        eo.Scenario(**(fields | change))

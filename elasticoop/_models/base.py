@@ -72,9 +72,9 @@ class AbstractElasticModel(eqx.Module):
             return f"gravity must be finite and >= 0 [m/s^2], got {gravity!r}"
         return model.elastic_refusal()
 
+    @abc.abstractmethod
     def elastic_refusal(self) -> str | None:
         """`refusal` of the elastic parameters (concrete, NumPy leaves)."""
-        return None if bool(self.elastic_admissible()) else "elastic parameters"
 
     @abc.abstractmethod
     def potential(self, y: State) -> Scalar:
