@@ -196,6 +196,13 @@ def test_initial_state_from_data_is_exact_on_polynomials():
     measured = np.full_like(y, 7.0)
     e = Experiment(ts, y, ydot=measured, window=11, polyorder=3)
     np.testing.assert_array_equal(e.ydot_init, measured[0])
+    # a given state of other bodies than the samples': both are named
+    with pytest.raises(
+        ValueError,
+        match=r"Experiment.y_init and Experiment.y must have the same bodies, got "
+        r"Experiment.y_init of shape \(3, 6\) .* Experiment.y of shape \(2, 6\)",
+    ):
+        Experiment(ts, y, np.ones((3, 6)), window=11, polyorder=3)
 
 
 def test_initial_state_from_data_refuses_missing_samples_and_short_data():

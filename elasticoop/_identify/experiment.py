@@ -203,6 +203,13 @@ def _series(value, name, n_times, n_bodies=None, nan_ok=True):
 
 def _state(value, name, n_bodies):
     arr = _array(value, name)
+    if arr.ndim == 2 and arr.shape[1] == 6 and arr.shape[0] != n_bodies:
+        # (which of the two is wrong is not known here: both are named)
+        raise ValueError(
+            f"{name} and Experiment.y must have the same bodies, got {name} of "
+            f"shape {arr.shape} ({arr.shape[0]} bodies) and samples of "
+            f"Experiment.y of shape ({n_bodies}, 6)"
+        )
     if arr.shape != (n_bodies, 6):
         raise ValueError(
             f"{name} must have shape ({n_bodies}, 6) like one sample of "
