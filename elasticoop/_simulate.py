@@ -81,7 +81,7 @@ def simulate(
     options: Validated[SimulationOptions | None] = None,
     dt0: float | None = None,
     adjoint: diffrax.AbstractAdjoint | StepwiseAdjoint | None = None,
-    throw: bool | None = None,
+    throw: Validated[bool | None] = None,
     gimbal_tol: float | None = None,
     link_tol: float | None = None,
     prescribed: Validated[PrescribedMotion | None] = None,
@@ -201,7 +201,7 @@ def _simulate(
     *,
     dt0: float | None = None,
     adjoint: diffrax.AbstractAdjoint | StepwiseAdjoint | None = None,
-    throw: bool | None = None,
+    throw: Validated[bool | None] = None,
     prescribed: Validated[PrescribedMotion | None] = None,
     progress_meter: diffrax.AbstractProgressMeter | None = None,
     batch_loop: bool | int | None = None,
@@ -218,6 +218,8 @@ def _simulate(
         raise ValueError(
             f"batch_loop must be True, False or a positive integer, got {batch_loop!r}"
         )
+    if throw is not None and not isinstance(throw, bool | np.bool_):
+        raise ValueError(f"simulate.throw must be True, False or None, got {throw!r}")
     diffrax_solver = options.diffrax_solver()
     fallback = False
     if adjoint is None:

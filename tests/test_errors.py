@@ -157,6 +157,7 @@ BAD_SIMULATE = {
     "dt0 zero": (dict(dt0=0.0), "simulate.dt0 must be a positive number, got 0.0"),
     "dt0 nan": (dict(dt0=float("nan")), "simulate.dt0 must be a positive number"),
     "model": (dict(model="beam"), "model must be an ImmobileModel or MobileModel"),
+    "throw": (dict(throw="no"), r"simulate.throw must be True, False or None"),
 }
 
 
