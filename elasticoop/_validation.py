@@ -70,6 +70,11 @@ def as_float_array(
             raise ValueError(f"{name} must be real, got {_show(raw)}")
         if raw.dtype.kind in "US":  # text, which the cast would read as numbers
             raise ValueError(not_numbers)
+        if raw.dtype.kind == "b":  # a mask given where numbers are meant
+            raise ValueError(
+                f"{name} must be an array of numbers, got an array of booleans of "
+                f"shape {raw.shape} (a mask in the place of numbers?)"
+            )
         try:
             arr = raw.astype(np.float64)
         except (TypeError, ValueError):

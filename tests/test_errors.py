@@ -554,3 +554,14 @@ def test_a_scenario_is_checked_when_it_is_built(change, match):
     fields = dict(name="x", model=MODEL, y_init=Y, ydot_init=Z, ts=TS, forces=None)
     with pytest.raises(ValueError, match=match):
         eo.Scenario(**(fields | change))
+
+
+def test_a_mask_in_the_place_of_forces_is_refused():
+    """`rest_state(model, y, held)` puts the mask where the forces go (they come
+    third, as in `simulate`): its booleans were read as forces of 1 N."""
+    held = np.zeros((3, 6), bool)
+    held[1:] = True
+    with pytest.raises(ValueError, match=r"rest_state.forces must be an array of num"):
+        eo.rest_state(MODEL, Y, held)
+    with pytest.raises(ValueError, match=r"F must be an array of numbers, got an arr"):
+        eo.simulate(MODEL, Y, Z, TS, forces=held[1:])

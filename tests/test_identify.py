@@ -391,7 +391,11 @@ def _data():
         (dict(y=np.zeros((10, 2, 6))), "time grids do not match"),
         (dict(y=np.zeros((11, 2, 5))), r"shape \(times, bodies, 6\)"),
         (dict(ts=np.linspace(0, 1, 11)[::-1]), "strictly increasing"),
-        (dict(y_init=np.zeros((3, 6))), r"y_init must have shape \(2, 6\)"),
+        (
+            dict(y_init=np.zeros((3, 6))),
+            r"Experiment.y_init and Experiment.y must have the same bodies",
+        ),
+        (dict(y_init=np.zeros(6)), r"y_init must have shape \(2, 6\)"),
         (dict(sigma=-1.0), "sigma must be positive"),
         (dict(sigma=np.ones(5)), "sigma must be a scalar"),
         (dict(forces=np.zeros((3, 6))), "forces must give shape"),

@@ -23,6 +23,7 @@ from jaxtyping import Array, Bool
 from .._custom_types import ArrayInput, State
 from .._forces import check_force_shape, pad_to_bodies
 from .._models import AbstractElasticModel
+from .._validation import as_float_array
 from ._common import as_mask
 from .equilibrium import _energy, _full, _imbalance
 
@@ -86,13 +87,16 @@ def rest_state(
     free = np.flatnonzero(~mask.reshape(-1))
     if free.size == 0:
         raise ValueError("held fixes every coordinate: nothing to solve for")
-    y_guess = jnp.asarray(y_guess, dtype=jnp.float64)
-    if y_guess.shape != (n, 6):
-        raise ValueError(f"y_guess must have shape ({n}, 6), got {y_guess.shape}")
+    # (shapes always, finiteness where concrete: the values may be traced)
+    y_guess = jnp.asarray(
+        as_float_array(y_guess, "rest_state.y_guess", (n, 6), check_traced=False)
+    )
     if forces is None:
         F = jnp.zeros((n, 6))
     else:
-        F = jnp.asarray(forces, dtype=jnp.float64)
+        F = jnp.asarray(
+            as_float_array(forces, "rest_state.forces", (None, 6), check_traced=False)
+        )
         check_force_shape(F.shape, n)
         F = pad_to_bodies(F, n)
     import optimistix as optx  # imported when a solve is traced
