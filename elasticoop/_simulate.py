@@ -115,9 +115,10 @@ def simulate(
       adjoint: forward mode (`jax.jvp`, `jax.jacfwd`) needs
       `diffrax.ForwardMode()`.
     - `throw`: `None` (default) raises `SimulationError` for an early stop when the
-      result is concrete, and reports it in `Trajectory.status` under `jit`/`vmap`/
-      `grad` (each element of a batch on its own); `True` raises in both cases
-      (also with the compilation cache on); `False` never raises.
+      outcome is concrete (outside transformations, and under `jax.grad` without
+      `jit`), and reports it in `Trajectory.status` under `jit` and `vmap` (each
+      element of a batch on its own); `True` raises in both cases (also with the
+      compilation cache on); `False` never raises.
     - `prescribed`: a `PrescribedMotion`: the coordinates in its mask follow its
       motion (their entries of `y_init`, `ydot_init` are taken from it) and only the
       others are integrated; `Trajectory.reaction` then holds the generalized forces
