@@ -24,6 +24,10 @@ def distinct_names(given: Iterable | None, n: int, default, what: str):
     """`given` as a tuple of `n` distinct strings (`default` when `None`)."""
     if given is None:
         return tuple(default)
+    if isinstance(given, str):  # (its letters would be taken for the names)
+        raise ValueError(
+            f"{what} must be a list of {n} names, got the single string {given!r}"
+        )
     names = tuple(str(b) for b in given)
     if len(names) != n or len(set(names)) != n:
         raise ValueError(f"{what} must be {n} distinct names, got {list(given)}")
@@ -60,3 +64,20 @@ def connection_names(
     pairs = [(int(i), int(j)) for i, j in pairs]
     default = tuple(f"{bodies[i]}-{bodies[j]}" for i, j in pairs)
     return distinct_names(given, len(pairs), default, "connection_names")
+
+
+# The time series of a run's results besides `y` and `ydot`, the variables of
+# `trajectory_to_xarray` and the column prefixes of `elasticoop run`'s
+# trajectory.csv (derived from the motion: not measured data).
+RESULT_SERIES = (
+    "kinetic_energy",
+    "elastic_energy",
+    "gravity_energy",
+    "work",
+    "dissipated",
+    "energy_residual",
+    "elastic_force",
+    "elastic_wrench",
+    "reaction",
+    "applied_force",
+)

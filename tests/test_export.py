@@ -12,8 +12,9 @@ import xarray as xr
 from helpers import two_body_run
 
 from elasticoop._io.files import write_outputs
-from elasticoop._io.summary import summarize
+from elasticoop._io.summary import format_summary, summarize
 from elasticoop._io.xarray import dataset_to_frame, trajectory_to_xarray
+from elasticoop._naming import RESULT_SERIES
 
 TS = jnp.linspace(0.0, 0.2, 11)
 
@@ -72,7 +73,20 @@ def test_dataset_layout_units_and_parameters(traj):
 def test_netcdf_csv_and_summary_roundtrip(traj, tmp_path):
     ds = trajectory_to_xarray(traj, attrs={"scenario": "small", "flag": True})
     summary = summarize(traj)
+    # the printed breakdown of the energy's change adds up to it (it printed the
+    # final kinetic and elastic energies beside the change of the gravity energy)
+    energy = summary["energy"]
+    parts = [energy[f"{kind}_change"] for kind in ("kinetic", "elastic", "gravity")]
+    assert sum(parts) == pytest.approx(energy["total_change"], rel=1e-12)
+    assert energy["kinetic_change"] == pytest.approx(
+        float(traj.kinetic_energy()[-1] - traj.kinetic_energy()[0]), rel=1e-12
+    )
+    line = next(x for x in format_summary(summary).splitlines() if "change of" in x)
+    assert f"kinetic {energy['kinetic_change']:+.6f}" in line
     paths = write_outputs(ds, summary, tmp_path / "out")
+    # the measured-data reader knows the result columns as such (`RESULT_SERIES`)
+    series = {v for v in ds.data_vars if ds[v].dims[:1] == ("time",)} - {"y", "ydot"}
+    assert series and series <= set(RESULT_SERIES)
     back = xr.open_dataset(paths["netcdf"], engine="h5netcdf")
     np.testing.assert_array_equal(back["y"].values, ds["y"].values)
     np.testing.assert_array_equal(back["time"].values, np.asarray(TS))
@@ -123,6 +137,8 @@ def test_bad_names_and_batches_are_rejected(traj):
         traj.to_xarray(body_names=["a"])
     with pytest.raises(ValueError, match="body_names must be 2 distinct names"):
         traj.to_xarray(body_names=["a", "a"])
+    with pytest.raises(ValueError, match="body_names must be a list of 2 names, got"):
+        traj.to_xarray(body_names="ab")  # (not the bodies 'a' and 'b')
     batch = jax.tree.map(lambda x: jnp.stack([x, x]), traj)
     with pytest.raises(ValueError, match="single trajectory"):
         trajectory_to_xarray(batch)

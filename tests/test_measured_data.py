@@ -183,6 +183,27 @@ def test_a_bad_csv_lists_every_problem_with_column_and_line(scenario, tmp_path):
     assert "Traceback" not in text
 
 
+def test_the_result_columns_of_a_run_are_named_once(scenario, tmp_path):
+    """A run's trajectory.csv given as data: its energy and force columns, which
+    are not measured, make one problem that says what to keep, not one each."""
+    t, y = known_motion()
+    path = write_csv(tmp_path / "run.csv", t, y, comment=False)
+    lines = path.read_text().splitlines()
+    extra = ["work [J]", "kinetic_energy [J]", "elastic_force.obj.x [N]"]
+    lines[0] += "," + ",".join(extra)
+    lines[1:] = [line + ",0.0,0.0,0.0" for line in lines[1:]]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFileError) as info:
+        load_experiment(path, scenario)
+    text = str(info.value)
+    assert (
+        "3 columns of a run's results (work, kinetic_energy, elastic_force.obj.x)"
+        in (text)
+    )
+    assert text.count("not measured data") == 1 and "trajectory.nc" in text
+    assert "not a column name" not in text
+
+
 def test_missing_columns_all_or_none_velocities_and_bad_noise(scenario, tmp_path):
     t, y = known_motion()
     path = write_csv(tmp_path / "m.csv", t, y)

@@ -16,7 +16,7 @@ import re
 
 import numpy as np
 
-from .._naming import coordinate_names
+from .._naming import RESULT_SERIES, coordinate_names
 from .data_files import TIME_COLUMNS
 from .limits import MAX_MAGNITUDE, format_bytes, magnitude_problem
 from .measured_samples import MeasuredData, check_samples_size
@@ -170,6 +170,7 @@ def _parse_header(header, line, scenario, add) -> list[_Column | None]:
     where = f"line {line} (header)"
     parsed: list[_Column | None] = []
     seen: dict[str, int] = {}
+    results: list[str] = []  # columns of a run's results, named once together
     for position, cell in enumerate(header):
         text = cell.strip()
         match = _HEADER.match(text)
@@ -198,7 +199,21 @@ def _parse_header(header, line, scenario, add) -> list[_Column | None]:
             parsed.append(None)
             continue
         seen[label] = position
+        if label.split(".")[0] in RESULT_SERIES:
+            results.append(label)
+            parsed.append(None)
+            continue
         parsed.append(_column(label, unit, names, coords, add, where))
+    if results:
+        listed = ", ".join(results[:3]) + (", ..." if len(results) > 3 else "")
+        add(
+            results[0],
+            where,
+            f"{len(results)} columns of a run's results ({listed}) are not measured "
+            f"data: keep the time and the '<body>.<coordinate>' or "
+            f"'y.<body>.<coordinate>' columns (and 'ydot.' ones if the rates were "
+            f"measured), or give the run's trajectory.nc, which is read as data",
+        )
     for k, column in enumerate(parsed):
         if k > 0 and column is not None and column.kind == "time":
             add(column.label, where, "the time column must come first")

@@ -70,6 +70,8 @@ def summarize(traj, body_names=None, connection_names=None) -> dict:
         "energy": {
             "kinetic_final": float(kinetic[last]),
             "elastic_final": float(elastic[last]),
+            "kinetic_change": float(kinetic[last] - kinetic[0]),
+            "elastic_change": float(elastic[last] - elastic[0]),
             "gravity_change": float(gravity[last] - gravity[0]),
             "total_change": float(change),
             "work_of_forces": work,
@@ -138,7 +140,7 @@ def format_summary(s: dict) -> str:
         f"    work of manipulator forces  {e['work_of_forces']:+.6f}",
         f"    dissipated in the grasps    {e['dissipated']:+.6f}",
         f"    change of T + Pi + m g z    {e['total_change']:+.6f}"
-        f"  (kinetic {e['kinetic_final']:.6f}, elastic {e['elastic_final']:.6f},"
+        f"  (kinetic {e['kinetic_change']:+.6f}, elastic {e['elastic_change']:+.6f},"
         f" gravity {e['gravity_change']:+.6f})",
         f"    residual (change - work + dissipated) {e['residual']:+.2e}"
         f"  (relative {e['relative_residual']:.1e})",
