@@ -9,6 +9,7 @@ import warnings
 from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
+import numpy as np
 
 if TYPE_CHECKING:
     import diffrax
@@ -46,6 +47,9 @@ MAX_STEPS_LIMIT = 2**31 - 1
 
 def _positive(value, name: str, owner: str) -> float:
     try:
+        # (text and booleans are not numbers here, though float() reads them)
+        if isinstance(value, str | bytes | bool | np.bool_):
+            raise TypeError
         number = float(value)
     except (TypeError, ValueError, OverflowError):
         number = math.nan

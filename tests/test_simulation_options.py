@@ -53,6 +53,15 @@ def test_a_bad_field_is_named_by_who_was_given_it():
         eo.SimulationOptions(solver="rk45")
     with pytest.raises(ValueError, match=r"^SimulationOptions.rtol must be a positive"):
         eo.SimulationOptions(rtol=-1.0)
+    # text and booleans are not numbers, though float() reads them (the check
+    # itself: under the tests' run-time type checks the annotation refuses first)
+    from elasticoop._options import _positive
+
+    for value, shown in (("1e-6", "'1e-6'"), (True, "True")):
+        with pytest.raises(
+            ValueError, match=rf"^S.*rtol must be a positive number, got {shown}"
+        ):
+            _positive(value, "rtol", "SimulationOptions")
     # a deprecated keyword of `simulate` replacing a field of given options: simulate's
     with pytest.warns(DeprecationWarning):
         with pytest.raises(ValueError, match=r"^simulate.rtol must be a positive"):

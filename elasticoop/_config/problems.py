@@ -51,6 +51,8 @@ def _all_field_names() -> list[str]:
 def unknown_key_message(key, allowed=None) -> str:
     """'unknown key' with a did-you-mean suggestion from the schema's key names."""
     candidates = list(allowed) if allowed is not None else _all_field_names()
+    # (a key of another table is unknown here, not a misspelling of itself)
+    candidates = [name for name in candidates if name != str(key)]
     close = difflib.get_close_matches(str(key), candidates, n=1)
     return "unknown key" + (f" (did you mean '{close[0]}'?)" if close else "")
 
