@@ -23,6 +23,7 @@ def _run(stiffness, ts=TS):
     return eo.simulate(model, Y0, jnp.zeros_like(Y0), ts, forces=LIFT)
 
 
+@pytest.mark.slow  # ~11 s: compiles the batch loop and each energy, batched and not
 def test_a_batch_is_indexed_and_its_energies_are_per_element():
     stiffness = jnp.stack([MODEL.stiffness, 1.5 * MODEL.stiffness])
     batch = jax.vmap(_run)(stiffness)
