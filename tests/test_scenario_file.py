@@ -630,3 +630,12 @@ def test_an_unknown_feedforward_word_gets_one_message(tmp_path):
     (problem,) = info.value.problems
     assert problem.key == "feedforward" and problem.message.endswith("got 'hld'")
     assert "'weight', 'hold', 'none' or a table" in problem.message
+
+
+def test_an_unknown_key_is_not_offered_as_its_own_correction():
+    """`solver = ...` in `[solver]` (whose key is `name`) is a key of another
+    table: it was answered "did you mean 'solver'?"."""
+    from elasticoop._config.problems import unknown_key_message
+
+    assert "did you mean 'solver'" not in unknown_key_message("solver")
+    assert unknown_key_message("mas").endswith("(did you mean 'mass'?)")
