@@ -565,3 +565,11 @@ def test_a_mask_in_the_place_of_forces_is_refused():
         eo.rest_state(MODEL, Y, held)
     with pytest.raises(ValueError, match=r"F must be an array of numbers, got an arr"):
         eo.simulate(MODEL, Y, Z, TS, forces=held[1:])
+    # and NaN, which sent the solver off to fail to converge (or, in the forces on
+    # the grasps, was returned as a finite rest state)
+    guess = np.asarray(Y).copy()
+    guess[0, 2] = np.nan
+    with pytest.raises(ValueError, match=r"rest_state.y_guess must be finite"):
+        eo.rest_state(MODEL, guess)
+    with pytest.raises(ValueError, match=r"rest_state.forces must be finite"):
+        eo.rest_state(MODEL, Y, np.full((2, 6), np.nan))
