@@ -103,7 +103,8 @@ def test_tiny_scenario_builds_what_the_file_says(tmp_path):
     np.testing.assert_allclose(s.model.rest_angles, [[0.0, 0.0, 0.0]])
     np.testing.assert_allclose(s.forces.F, [[0, 0, 15.0, 0, 0, 0]])
     np.testing.assert_allclose(s.ts, np.linspace(0, 0.2, 11))
-    assert (s.solver, s.rtol, s.atol) == ("tsit5", 1e-8, 1e-10)
+    # no [solver] table: the defaults of simulate, SimulationOptions()
+    assert (s.solver, s.rtol, s.atol) == ("dopri8", 1e-9, 1e-11)
 
 
 def test_rest_length_from_unloaded_tables_or_given(tmp_path):
@@ -164,7 +165,7 @@ def test_immobile_model_from_csv_and_npy(immobile_dir):
     np.testing.assert_array_equal(s.model.K, coupling([1e3] * 3 + [5.0] * 3))
     np.testing.assert_array_equal(s.model.D, coupling([2.0] * 3 + [0.01] * 3))
     np.testing.assert_array_equal(s.model.y0, s.y_init)  # Y0 defaults to initial
-    assert s.forces is None and s.solver == "tsit5"
+    assert s.forces is None and s.solver == "dopri8"
 
 
 @pytest.mark.slow

@@ -18,7 +18,13 @@ from pydantic import (
     model_validator,
 )
 
-from .._options import MAX_STEPS_LIMIT, SOLVERS as SOLVER_CLASSES
+from .._options import (
+    DEFAULT_ATOL,
+    DEFAULT_RTOL,
+    DEFAULT_SOLVER,
+    MAX_STEPS_LIMIT,
+    SOLVERS as SOLVER_CLASSES,
+)
 from .limits import magnitude_problem
 
 
@@ -282,11 +288,12 @@ class TimeTable(Table):
 
 class SolverTable(Table):
     """`[solver]`: diffrax solver by name, the step-size controller's tolerances and
-    the step budget (an integer from 1 to `MAX_STEPS_LIMIT`)."""
+    the step budget (an integer from 1 to `MAX_STEPS_LIMIT`); by default those of
+    `SimulationOptions()`, as `simulate` without options."""
 
-    name: Literal[SOLVERS] = "tsit5"  # type: ignore[valid-type]  # the solver names
-    rtol: Fraction = 1e-8
-    atol: Positive = 1e-10
+    name: Literal[SOLVERS] = DEFAULT_SOLVER  # type: ignore[valid-type]  # the names
+    rtol: Fraction = DEFAULT_RTOL
+    atol: Positive = DEFAULT_ATOL
     max_steps: Annotated[int, Field(ge=1, le=MAX_STEPS_LIMIT)] = 100_000
 
 
