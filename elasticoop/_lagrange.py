@@ -78,6 +78,16 @@ def _coordinates(x: State) -> BodyCoordinates:
     return tuple(c[:, 0] for c in jnp.split(x, 6, axis=1))
 
 
+def _mass_blocks(model: AbstractElasticModel, q: BodyCoordinates) -> FactoredMassBlocks:
+    """The blocks $W_i$ at the coordinates `q` (`_coordinates` of $Y$), factored."""
+    inertia = model.bodies.inertia
+    return FactoredMassBlocks(
+        model.bodies.mass,
+        (inertia[:, 0], inertia[:, 1], inertia[:, 2]),
+        model.rotation.angular_velocity_rows(q[3:6]),
+    )
+
+
 def _replace(xs: BodyCoordinates, k: int, value: BodyCoordinate) -> BodyCoordinates:
     return xs[:k] + (value,) + xs[k + 1 :]
 
@@ -265,12 +275,7 @@ def _balance(
     q, v = _coordinates(y), _coordinates(ydot)
     elastic, damping = model.restoring_forces(y, ydot)
     rhs = model.gravity_forces() + applied - elastic - damping
-    inertia = model.bodies.inertia
-    W = FactoredMassBlocks(
-        model.bodies.mass,
-        (inertia[:, 0], inertia[:, 1], inertia[:, 2]),
-        model.rotation.angular_velocity_rows(q[3:6]),
-    )
+    W = _mass_blocks(model, q)
     c = _structured_velocity_terms(model, W, q, v)
     b = tuple(r - c_k for r, c_k in zip(_coordinates(rhs), c, strict=True))
     return W, b, damping
@@ -413,12 +418,7 @@ def linear_rate_bound(model: AbstractElasticModel, y: State) -> Scalar:
     covers what the iteration leaves, and the softening of links under
     compression. `simulate` bounds its steps with it (`_integrate.stability`)."""
     zero = jnp.zeros_like(y)
-    inertia = model.bodies.inertia
-    W = FactoredMassBlocks(
-        model.bodies.mass,
-        (inertia[:, 0], inertia[:, 1], inertia[:, 2]),
-        model.rotation.angular_velocity_rows(_coordinates(y)[3:6]),
-    )
+    W = _mass_blocks(model, _coordinates(y))
 
     def forces(q: State, u: State) -> State:
         elastic, damping = model.restoring_forces(q, u)

@@ -381,24 +381,6 @@ def _of_state(
     return condition(t, _unpack(state)[0], args)
 
 
-def _traced_admissible(model: AbstractElasticModel) -> Array:
-    """`model.admissible()` without its matrix decompositions: the bodies, gravity
-    and a `MobileModel`'s parameters in range and finite, an `ImmobileModel`'s K,
-    D and Y_0 finite (their definiteness needs an eigenvalue decomposition, which
-    is left to construction and to Monte Carlo draws). A concrete model was
-    checked whole before."""
-    if isinstance(model, MobileModel):  # (no decomposition in its checks)
-        return jnp.asarray(model.admissible())
-    np_ = xp(model.gravity)
-    valid = (
-        model.bodies.admissible() & np_.isfinite(model.gravity) & (model.gravity >= 0)
-    )
-    leaves = [x for x in jax.tree.leaves(model) if eqx.is_inexact_array(x)]
-    return jnp.asarray(
-        valid & jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
-    )
-
-
 def _stable_step(
     model: AbstractElasticModel, y: State, solver: diffrax.AbstractSolver
 ) -> Scalar:
@@ -490,7 +472,9 @@ def _solve(
     start_finite = jnp.isfinite(y_init).all(axis=1) & jnp.isfinite(ydot_init).all(
         axis=1
     )
-    invalid0 = ~_traced_admissible(model)
+    # (the checks of construction that need no eigenvalue decomposition: a
+    # concrete model was checked whole before)
+    invalid0 = ~jnp.asarray(model.admissible(definiteness=False))
     nonfinite0 = ~invalid0 & ~jnp.all(start_finite)
     reg0 = _regularity(model, y_init)
     singular0 = ~nonfinite0 & jnp.any(jnp.abs(reg0) < gimbal_tol)

@@ -32,17 +32,20 @@ class AbstractElasticModel(eqx.Module):
     convention: eqx.AbstractVar[str]
 
     @abc.abstractmethod
-    def elastic_admissible(self) -> BoolScalar:
+    def elastic_admissible(self, definiteness: bool = True) -> BoolScalar:
         """Whether the elastic parameters pass the checks of construction (part
-        of `admissible`), by `xp` so that it works traced or not."""
+        of `admissible`), by `xp` so that it works traced or not; without
+        `definiteness`, the checks that need no matrix decomposition."""
 
-    def admissible(self) -> BoolScalar:
+    def admissible(self, definiteness: bool = True) -> BoolScalar:
         """Whether the parameters pass the checks of construction (bodies,
         $g \\ge 0$, the elastic parameters), traced or not: for a model whose
         values were changed afterwards (`eqx.tree_at`, a Monte Carlo draw), which
         no constructor has checked (the ranges and finiteness; not the rank of
         an immobile model's K). Evaluated by NumPy when the values are
-        concrete."""
+        concrete. `definiteness=False` leaves out the checks that need an
+        eigenvalue decomposition (an immobile model's K and D semidefinite), for
+        a program that must not call LAPACK (`simulate`'s, under a trace)."""
         # NumPy leaves where concrete: JAX operators on concrete arrays would still
         # be staged into a surrounding `jit`
         model = jax.tree.map(np.asarray, self) if is_concrete(self) else self
@@ -51,7 +54,7 @@ class AbstractElasticModel(eqx.Module):
             model.bodies.admissible()
             & np_.isfinite(model.gravity)
             & (model.gravity >= 0)
-            & model.elastic_admissible()
+            & model.elastic_admissible(definiteness)
         )
 
     def refusal(self) -> str | None:

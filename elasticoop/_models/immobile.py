@@ -133,12 +133,18 @@ class ImmobileModel(AbstractElasticModel):
     def restoring_forces(self, y: State, ydot: State) -> tuple[State, State]:
         return autodiff_restoring_forces(self, y, ydot)
 
-    def elastic_admissible(self) -> BoolScalar:
-        """The symmetric parts of K and D positive semidefinite, K, D and Y_0
-        finite. (Only the symmetric parts enter $\\Pi$ and $R$: a draw that
-        perturbs the entries one by one is not symmetric, but is admissible when
-        its symmetric parts are stable.)"""
+    def elastic_admissible(self, definiteness: bool = True) -> BoolScalar:
+        """The symmetric parts of K and D positive semidefinite (with
+        `definiteness`), K, D and Y_0 finite. (Only the symmetric parts enter
+        $\\Pi$ and $R$: a draw that perturbs the entries one by one is not
+        symmetric, but is admissible when its symmetric parts are stable.)"""
         np_ = xp(self.K, self.D, self.y0)
+        if not definiteness:
+            return (
+                np_.all(np_.isfinite(self.K))
+                & np_.all(np_.isfinite(self.D))
+                & np_.all(np_.isfinite(self.y0))
+            )
 
         def symmetric_part(M):
             return 0.5 * (M + M.T)

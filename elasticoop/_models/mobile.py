@@ -334,9 +334,9 @@ class MobileModel(AbstractElasticModel):
 
         return per_body(elastic), per_body(damping)
 
-    def elastic_admissible(self) -> BoolScalar:
+    def elastic_admissible(self, definiteness: bool = True) -> BoolScalar:
         """Stiffness, damping and rest lengths finite and >= 0, rest angles
-        finite."""
+        finite (no check needs a decomposition: `definiteness` changes nothing)."""
         np_ = xp(self.stiffness, self.damping, self.rest_length, self.rest_angles)
 
         def finite_nonnegative(x):
